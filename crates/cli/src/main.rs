@@ -1,0 +1,55 @@
+//! `revisit`: the command line over Revisit's stage libraries.
+//!
+//! Thin by design: each subcommand parses its arguments, calls the stage
+//! libraries in order, shows progress and writes the artifacts. Errors are
+//! reported once, here, as one line naming what is at fault.
+
+mod commands;
+mod progress;
+
+use clap::{Parser, Subcommand};
+
+/// Fuse camera surveys of one site, taken months or years apart, into one
+/// coherent 3D reconstruction.
+#[derive(Parser)]
+#[command(name = "revisit", version, about, long_about = None)]
+struct Cli {
+    /// Log verbosity: -v for debug, -vv for trace (or set RUST_LOG).
+    #[arg(short, long, action = clap::ArgAction::Count, global = true)]
+    verbose: u8,
+    #[command(subcommand)]
+    command: Command,
+}
+
+#[derive(Subcommand)]
+enum Command {
+    /// Reconstruct one or more sessions (visits) jointly into one COLMAP model.
+    Reconstruct(commands::reconstruct::Args),
+    /// Render a synthetic multi-visit reef survey with exact ground truth.
+    Synth(commands::synth::Args),
+    /// Score a reconstruction with the published cross-visit reprojection protocol.
+    Eval(commands::eval::Args),
+    /// Benchmarks that print Revisit's figures beside a reference implementation.
+    #[command(subcommand)]
+    Bench(commands::bench::Bench),
+}
+
+fn main() -> std::process::ExitCode {
+    let cli = Cli::parse();
+    progress::init_logging(cli.verbose);
+    let result = match cli.command {
+        Command::Reconstruct(args) => commands::reconstruct::run(args),
+        Command::Synth(args) => commands::synth::run(args),
+        Command::Eval(args) => commands::eval::run(args),
+        Command::Bench(bench) => commands::bench::run(bench),
+    };
+    match result {
+        Ok(()) => std::process::ExitCode::SUCCESS,
+        Err(err) => {
+            // One line: the outermost context first, then its causes.
+            let chain: Vec<String> = err.chain().map(ToString::to_string).collect();
+            eprintln!("error: {}", chain.join(": "));
+            std::process::ExitCode::FAILURE
+        }
+    }
+}

@@ -1,0 +1,1 @@
+//! revisit-colmap (see ARCHITECTURE.md).

@@ -1,0 +1,1 @@
+//! revisit-eval (see ARCHITECTURE.md).

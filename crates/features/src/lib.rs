@@ -1,0 +1,1 @@
+//! revisit-features (see ARCHITECTURE.md).

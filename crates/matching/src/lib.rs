@@ -1,0 +1,1 @@
+//! revisit-matching (see ARCHITECTURE.md).

@@ -1,0 +1,1 @@
+//! revisit-store (see ARCHITECTURE.md).

@@ -1,0 +1,1 @@
+//! revisit-synth (see ARCHITECTURE.md).
