@@ -1,1 +1,32 @@
-//! revisit-matching (see ARCHITECTURE.md).
+//! Which image pairs to match, how to match their descriptors, and how to
+//! verify the matches geometrically.
+//!
+//! Invariant: pure given features. No files, no store, no topics: callers hand
+//! in features and get matches and two-view geometries back.
+
+mod descriptors;
+mod pairs;
+mod verify;
+
+pub use descriptors::{match_descriptors, MatchOptions};
+pub use pairs::{exhaustive_pairs, intra_session_pairs, PairOptions};
+pub use verify::{verify, VerifyOptions};
+
+#[derive(Debug, thiserror::Error, PartialEq)]
+pub enum OptionsError {
+    #[error("option {name} = {value} is out of range: {expected}")]
+    OutOfRange { name: &'static str, value: String, expected: &'static str },
+}
+
+fn check_range<T: PartialOrd + std::fmt::Display>(
+    name: &'static str,
+    value: T,
+    low: T,
+    high: T,
+    expected: &'static str,
+) -> Result<(), OptionsError> {
+    if value < low || value > high {
+        return Err(OptionsError::OutOfRange { name, value: value.to_string(), expected });
+    }
+    Ok(())
+}

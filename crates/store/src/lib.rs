@@ -1,1 +1,368 @@
-//! revisit-store (see ARCHITECTURE.md).
+//! The store: one SQLite file that is both a COLMAP database (3.8 schema, read
+//! by COLMAP 3.8 and pycolmap 4.x) and Revisit's memory of the work done:
+//! sessions, which image pairs were matched, how and with what result.
+//!
+//! Invariant: the only code in Revisit that speaks SQL. Every write of one
+//! image's features or one pair's matches is a single transaction, so a killed
+//! run leaves complete records only, and "is it done?" is "is the row there?".
+
+mod blob;
+mod schema;
+
+use std::collections::{BTreeMap, BTreeSet};
+use std::path::{Path, PathBuf};
+
+use revisit_core::{
+    pair_from_id, pair_id, Camera, CameraId, CameraModel, Features, ImageId, Keypoint, TwoViewConfig,
+    TwoViewGeometry,
+};
+use rusqlite::{params, Connection, OptionalExtension};
+
+#[derive(Debug, thiserror::Error)]
+pub enum StoreError {
+    #[error("store {path}: {source}")]
+    Sqlite { path: PathBuf, source: rusqlite::Error },
+    #[error("store {path}: {what} is corrupt: {reason}")]
+    Corrupt { path: PathBuf, what: String, reason: String },
+    #[error("store {path}: session {session:?} was added from {stored}, not {given}")]
+    SessionSourceMismatch { path: PathBuf, session: String, stored: String, given: String },
+    #[error("store {path}: {key} was {stored} when the store was made, not {given}; use a new output folder")]
+    SettingMismatch { path: PathBuf, key: String, stored: String, given: String },
+    #[error("store {path}: no image with id {image_id}")]
+    UnknownImage { path: PathBuf, image_id: ImageId },
+}
+
+pub type Result<T> = std::result::Result<T, StoreError>;
+
+/// What Revisit remembers of one matched image pair.
+#[derive(Clone, Debug, PartialEq)]
+pub struct PairRecord {
+    pub image_id1: ImageId,
+    pub image_id2: ImageId,
+    /// `intra` (same session) or `cross` (different sessions).
+    pub kind: String,
+    /// The matcher, e.g. `sift`.
+    pub method: String,
+    /// The roll applied to image 2 before matching, degrees (0 for SIFT).
+    pub roll_deg: i32,
+    pub num_matches: usize,
+    pub num_inliers: usize,
+}
+
+/// A session as stored: its name, where its images came from, its camera.
+#[derive(Clone, Debug, PartialEq)]
+pub struct SessionRecord {
+    pub name: String,
+    pub source: String,
+    pub camera_id: CameraId,
+}
+
+pub struct Store {
+    conn: Connection,
+    path: PathBuf,
+}
+
+impl Store {
+    /// Opens (creating if needed) the store at `path`.
+    pub fn open(path: &Path) -> Result<Self> {
+        let conn = Connection::open(path).map_err(|source| StoreError::Sqlite { path: path.into(), source })?;
+        let store = Self { conn, path: path.to_path_buf() };
+        store.conn.execute_batch(schema::SCHEMA).map_err(|e| store.sql(e))?;
+        Ok(store)
+    }
+
+    pub fn path(&self) -> &Path {
+        &self.path
+    }
+
+    fn sql(&self, source: rusqlite::Error) -> StoreError {
+        StoreError::Sqlite { path: self.path.clone(), source }
+    }
+
+    fn corrupt(&self, what: impl Into<String>, reason: impl Into<String>) -> StoreError {
+        StoreError::Corrupt { path: self.path.clone(), what: what.into(), reason: reason.into() }
+    }
+
+    /// Records `value` under `key` the first time; later calls must give the
+    /// same value (e.g. the feature options a store was built with).
+    pub fn pin_setting(&self, key: &str, value: &str) -> Result<()> {
+        let stored: Option<String> = self
+            .conn
+            .query_row("SELECT value FROM revisit_settings WHERE key = ?1", [key], |r| r.get(0))
+            .optional()
+            .map_err(|e| self.sql(e))?;
+        match stored {
+            Some(stored) if stored != value => Err(StoreError::SettingMismatch {
+                path: self.path.clone(),
+                key: key.into(),
+                stored,
+                given: value.into(),
+            }),
+            Some(_) => Ok(()),
+            None => {
+                self.conn
+                    .execute("INSERT INTO revisit_settings (key, value) VALUES (?1, ?2)", [key, value])
+                    .map_err(|e| self.sql(e))?;
+                Ok(())
+            }
+        }
+    }
+
+    /// The sessions in the store, by name.
+    pub fn sessions(&self) -> Result<Vec<SessionRecord>> {
+        let mut stmt = self
+            .conn
+            .prepare("SELECT name, source, camera_id FROM revisit_sessions ORDER BY name")
+            .map_err(|e| self.sql(e))?;
+        let rows = stmt
+            .query_map([], |r| Ok(SessionRecord { name: r.get(0)?, source: r.get(1)?, camera_id: r.get(2)? }))
+            .map_err(|e| self.sql(e))?;
+        rows.collect::<std::result::Result<_, _>>().map_err(|e| self.sql(e))
+    }
+
+    /// Adds a session with its camera, or returns the stored one if it was
+    /// added before from the same source.
+    pub fn ensure_session(&mut self, name: &str, source: &str, camera: &Camera) -> Result<SessionRecord> {
+        if let Some(stored) = self.sessions()?.into_iter().find(|s| s.name == name) {
+            if stored.source != source {
+                return Err(StoreError::SessionSourceMismatch {
+                    path: self.path.clone(),
+                    session: name.into(),
+                    stored: stored.source,
+                    given: source.into(),
+                });
+            }
+            return Ok(stored);
+        }
+        let path = self.path.clone();
+        let sql = |source| StoreError::Sqlite { path: path.clone(), source };
+        let tx = self.conn.transaction().map_err(sql)?;
+        tx.execute(
+            "INSERT INTO cameras (model, width, height, params, prior_focal_length) VALUES (?1, ?2, ?3, ?4, 0)",
+            params![camera.model.id(), camera.width, camera.height, blob::f64s(&camera.params)],
+        )
+        .map_err(sql)?;
+        let camera_id = CameraId::try_from(tx.last_insert_rowid()).unwrap_or(0);
+        tx.execute(
+            "INSERT INTO revisit_sessions (name, source, camera_id) VALUES (?1, ?2, ?3)",
+            params![name, source, camera_id],
+        )
+        .map_err(sql)?;
+        tx.commit().map_err(sql)?;
+        Ok(SessionRecord { name: name.into(), source: source.into(), camera_id })
+    }
+
+    pub fn camera(&self, camera_id: CameraId) -> Result<Camera> {
+        let (model, width, height, params): (i64, u32, u32, Vec<u8>) = self
+            .conn
+            .query_row(
+                "SELECT model, width, height, params FROM cameras WHERE camera_id = ?1",
+                [camera_id],
+                |r| Ok((r.get(0)?, r.get(1)?, r.get(2)?, r.get(3)?)),
+            )
+            .map_err(|e| self.sql(e))?;
+        let what = || format!("camera {camera_id}");
+        let model = CameraModel::from_id(model).map_err(|e| self.corrupt(what(), e.to_string()))?;
+        let params = blob::to_f64s(&params).ok_or_else(|| self.corrupt(what(), "params blob length"))?;
+        Camera::new(camera_id, model, width, height, params).map_err(|e| self.corrupt(what(), e.to_string()))
+    }
+
+    /// Adds images (COLMAP names `session/file`) with their camera, keeping
+    /// those already there; returns every image's id by name.
+    pub fn ensure_images(&mut self, names: &[String], camera_id: CameraId) -> Result<BTreeMap<String, ImageId>> {
+        let path = self.path.clone();
+        let sql = |source| StoreError::Sqlite { path: path.clone(), source };
+        let tx = self.conn.transaction().map_err(sql)?;
+        {
+            let mut insert =
+                tx.prepare("INSERT OR IGNORE INTO images (name, camera_id) VALUES (?1, ?2)").map_err(sql)?;
+            for name in names {
+                insert.execute(params![name, camera_id]).map_err(sql)?;
+            }
+        }
+        tx.commit().map_err(sql)?;
+        self.image_ids()
+    }
+
+    /// Every image's id, by name.
+    pub fn image_ids(&self) -> Result<BTreeMap<String, ImageId>> {
+        let mut stmt = self.conn.prepare("SELECT name, image_id FROM images").map_err(|e| self.sql(e))?;
+        let rows = stmt.query_map([], |r| Ok((r.get(0)?, r.get(1)?))).map_err(|e| self.sql(e))?;
+        rows.collect::<std::result::Result<_, _>>().map_err(|e| self.sql(e))
+    }
+
+    /// Images whose features are stored.
+    pub fn images_with_features(&self) -> Result<BTreeSet<ImageId>> {
+        let mut stmt = self
+            .conn
+            .prepare("SELECT k.image_id FROM keypoints k JOIN descriptors d ON d.image_id = k.image_id")
+            .map_err(|e| self.sql(e))?;
+        let rows = stmt.query_map([], |r| r.get(0)).map_err(|e| self.sql(e))?;
+        rows.collect::<std::result::Result<_, _>>().map_err(|e| self.sql(e))
+    }
+
+    /// Stores one image's keypoints and descriptors in one transaction.
+    pub fn write_features(&mut self, image_id: ImageId, features: &Features) -> Result<()> {
+        let path = self.path.clone();
+        let sql = |source| StoreError::Sqlite { path: path.clone(), source };
+        let keypoints: Vec<f32> = features.keypoints.iter().flat_map(Keypoint::to_affine).collect();
+        let tx = self.conn.transaction().map_err(sql)?;
+        tx.execute(
+            "INSERT OR REPLACE INTO keypoints (image_id, rows, cols, data) VALUES (?1, ?2, 6, ?3)",
+            params![image_id, features.len() as i64, blob::f32s(&keypoints)],
+        )
+        .map_err(sql)?;
+        tx.execute(
+            "INSERT OR REPLACE INTO descriptors (image_id, rows, cols, data) VALUES (?1, ?2, ?3, ?4)",
+            params![image_id, features.len() as i64, features.descriptor_dim as i64, features.descriptors],
+        )
+        .map_err(sql)?;
+        tx.commit().map_err(sql)
+    }
+
+    pub fn read_features(&self, image_id: ImageId) -> Result<Features> {
+        let what = || format!("features of image {image_id}");
+        let row = self
+            .conn
+            .query_row(
+                "SELECT k.rows, k.cols, k.data, d.rows, d.cols, d.data FROM keypoints k \
+                 JOIN descriptors d ON d.image_id = k.image_id WHERE k.image_id = ?1",
+                [image_id],
+                |r| {
+                    Ok((
+                        count(r.get(0)?),
+                        count(r.get(1)?),
+                        r.get::<_, Option<Vec<u8>>>(2)?.unwrap_or_default(),
+                        count(r.get(3)?),
+                        count(r.get(4)?),
+                        r.get::<_, Option<Vec<u8>>>(5)?.unwrap_or_default(),
+                    ))
+                },
+            )
+            .optional()
+            .map_err(|e| self.sql(e))?;
+        let Some((rows, cols, kp_blob, drows, dcols, descriptors)) = row else {
+            return Err(StoreError::UnknownImage { path: self.path.clone(), image_id });
+        };
+        let values = blob::to_f32s(&kp_blob).ok_or_else(|| self.corrupt(what(), "keypoint blob length"))?;
+        if values.len() != rows * cols || drows != rows || descriptors.len() != drows * dcols || cols == 0 {
+            return Err(self.corrupt(what(), "row/column counts disagree with the blobs"));
+        }
+        let keypoints = values
+            .chunks_exact(cols)
+            .map(|row| Keypoint::from_columns(row).ok_or_else(|| self.corrupt(what(), format!("{cols} columns"))))
+            .collect::<Result<Vec<_>>>()?;
+        Ok(Features { keypoints, descriptors, descriptor_dim: dcols })
+    }
+
+    /// Pairs already matched and verified (COLMAP pair ids).
+    pub fn matched_pairs(&self) -> Result<BTreeSet<u64>> {
+        let mut stmt = self.conn.prepare("SELECT pair_id FROM revisit_pairs").map_err(|e| self.sql(e))?;
+        let rows = stmt.query_map([], |r| r.get::<_, i64>(0)).map_err(|e| self.sql(e))?;
+        rows.map(|r| r.map(|id| id as u64)).collect::<std::result::Result<_, _>>().map_err(|e| self.sql(e))
+    }
+
+    /// Stores one pair's raw matches, verified geometry and record in one
+    /// transaction. Matches index (image 1, image 2) of `record`; they are
+    /// swapped as COLMAP wants when image 1 has the larger id.
+    pub fn write_pair(&mut self, record: &PairRecord, matches: &[[u32; 2]], geometry: &TwoViewGeometry) -> Result<()> {
+        let path = self.path.clone();
+        let sql = |source| StoreError::Sqlite { path: path.clone(), source };
+        let id = pair_id(record.image_id1, record.image_id2);
+        let swapped = record.image_id1 > record.image_id2;
+        let ordered = |m: &[[u32; 2]]| -> Vec<u32> {
+            m.iter().flat_map(|&[a, b]| if swapped { [b, a] } else { [a, b] }).collect()
+        };
+        let transpose = |m: &nalgebra::Matrix3<f64>| if swapped { m.transpose() } else { *m };
+        let matrix = |m: Option<nalgebra::Matrix3<f64>>| m.map(|m| blob::matrix_row_major(&transpose(&m)));
+        let pose = geometry.cam2_from_cam1.map(|p| if swapped { p.inverse() } else { p });
+        let tx = self.conn.transaction().map_err(sql)?;
+        tx.execute(
+            "INSERT OR REPLACE INTO matches (pair_id, rows, cols, data) VALUES (?1, ?2, 2, ?3)",
+            params![id as i64, matches.len() as i64, blob::u32s(&ordered(matches))],
+        )
+        .map_err(sql)?;
+        tx.execute(
+            "INSERT OR REPLACE INTO two_view_geometries (pair_id, rows, cols, data, config, F, E, H, qvec, tvec) \
+             VALUES (?1, ?2, 2, ?3, ?4, ?5, ?6, ?7, ?8, ?9)",
+            params![
+                id as i64,
+                geometry.inlier_matches.len() as i64,
+                blob::u32s(&ordered(&geometry.inlier_matches)),
+                geometry.config as i32,
+                matrix(geometry.f),
+                matrix(geometry.e),
+                matrix(geometry.h),
+                pose.map(|p| blob::f64s(&p.wxyz())),
+                pose.map(|p| blob::f64s(p.translation.as_slice())),
+            ],
+        )
+        .map_err(sql)?;
+        tx.execute(
+            "INSERT OR REPLACE INTO revisit_pairs (pair_id, image_id1, image_id2, kind, method, roll_deg, \
+             num_matches, num_inliers) VALUES (?1, ?2, ?3, ?4, ?5, ?6, ?7, ?8)",
+            params![
+                id as i64,
+                record.image_id1.min(record.image_id2),
+                record.image_id1.max(record.image_id2),
+                record.kind,
+                record.method,
+                record.roll_deg,
+                record.num_matches as i64,
+                record.num_inliers as i64
+            ],
+        )
+        .map_err(sql)?;
+        tx.commit().map_err(sql)
+    }
+
+    /// Every pair record, ordered by pair id.
+    pub fn pair_records(&self) -> Result<Vec<PairRecord>> {
+        let mut stmt = self
+            .conn
+            .prepare(
+                "SELECT image_id1, image_id2, kind, method, roll_deg, num_matches, num_inliers \
+                 FROM revisit_pairs ORDER BY pair_id",
+            )
+            .map_err(|e| self.sql(e))?;
+        let rows = stmt
+            .query_map([], |r| {
+                Ok(PairRecord {
+                    image_id1: r.get(0)?,
+                    image_id2: r.get(1)?,
+                    kind: r.get(2)?,
+                    method: r.get(3)?,
+                    roll_deg: r.get(4)?,
+                    num_matches: count(r.get(5)?),
+                    num_inliers: count(r.get(6)?),
+                })
+            })
+            .map_err(|e| self.sql(e))?;
+        rows.collect::<std::result::Result<_, _>>().map_err(|e| self.sql(e))
+    }
+
+    /// The verified inlier matches of a pair, indexed (smaller id, larger id).
+    pub fn two_view_geometry(&self, pair: u64) -> Result<Option<(TwoViewConfig, Vec<[u32; 2]>)>> {
+        let (a, b) = pair_from_id(pair);
+        let row: Option<(i64, Option<Vec<u8>>)> = self
+            .conn
+            .query_row("SELECT config, data FROM two_view_geometries WHERE pair_id = ?1", [pair as i64], |r| {
+                Ok((r.get(0)?, r.get(1)?))
+            })
+            .optional()
+            .map_err(|e| self.sql(e))?;
+        let Some((config, data)) = row else { return Ok(None) };
+        let values = blob::to_u32s(&data.unwrap_or_default())
+            .ok_or_else(|| self.corrupt(format!("two-view geometry of images {a} and {b}"), "blob length"))?;
+        let matches = values.chunks_exact(2).map(|c| [c[0], c[1]]).collect();
+        Ok(Some((TwoViewConfig::from_code(config), matches)))
+    }
+}
+
+/// A row or match count as stored (SQLite integers are i64).
+fn count(value: i64) -> usize {
+    usize::try_from(value).unwrap_or(0)
+}
+
+#[cfg(test)]
+mod tests;

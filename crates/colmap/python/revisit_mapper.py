@@ -1,0 +1,82 @@
+"""Revisit's mapping entry point: one joint COLMAP run over a Revisit store.
+
+Run by revisit-colmap's mapper driver from the project's virtual environment
+(it is embedded in the Rust binary and written next to the output). Reads the
+store (a COLMAP database), maps with pycolmap, writes every model it produced to
+OUTPUT/<k> (k = 0, 1, ... by decreasing number of registered images), and
+prints one JSON line with a summary of each model on stdout. Logs go to stderr.
+"""
+
+import argparse
+import json
+import shutil
+import sys
+import time
+from pathlib import Path
+
+
+def main() -> int:
+    parser = argparse.ArgumentParser(description=__doc__)
+    parser.add_argument("--database", required=True, type=Path)
+    parser.add_argument("--image-path", required=True, type=Path)
+    parser.add_argument("--output", required=True, type=Path)
+    parser.add_argument("--engine", choices=["incremental", "global"], default="incremental")
+    parser.add_argument("--input-path", type=Path, default=None,
+                        help="existing model to extend (incremental only)")
+    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--threads", type=int, default=-1)
+    parser.add_argument("--min-model-size", type=int, default=10)
+    args = parser.parse_args()
+
+    try:
+        import pycolmap
+    except ImportError as err:
+        print(f"pycolmap is not importable from {sys.executable}: {err}", file=sys.stderr)
+        return 3
+
+    if args.output.exists():
+        shutil.rmtree(args.output)
+    args.output.mkdir(parents=True)
+    started = time.monotonic()
+    if args.engine == "incremental":
+        options = pycolmap.IncrementalPipelineOptions()
+        options.random_seed = args.seed
+        options.num_threads = args.threads
+        options.min_model_size = args.min_model_size
+        options.mapper.random_seed = args.seed
+        options.mapper.num_threads = args.threads
+        raw = args.output / "raw"
+        raw.mkdir()
+        models = pycolmap.incremental_mapping(
+            args.database, args.image_path, raw, options,
+            input_path=str(args.input_path) if args.input_path else "",
+        )
+    else:
+        options = pycolmap.GlobalPipelineOptions()
+        if hasattr(options, "random_seed"):
+            options.random_seed = args.seed
+        if hasattr(options, "num_threads"):
+            options.num_threads = args.threads
+        raw = args.output / "raw"
+        raw.mkdir()
+        models = pycolmap.global_mapping(args.database, args.image_path, raw, options)
+    shutil.rmtree(raw, ignore_errors=True)
+
+    ordered = sorted(models.values(), key=lambda r: (-r.num_reg_images(), -r.num_points3D()))
+    summary = []
+    for k, model in enumerate(ordered):
+        path = args.output / str(k)
+        path.mkdir()
+        model.write_binary(str(path))
+        summary.append({
+            "path": str(path),
+            "registered_images": sorted(img.name for img in model.images.values() if img.has_pose),
+            "points": model.num_points3D(),
+            "mean_reprojection_error_px": model.compute_mean_reprojection_error(),
+        })
+    print(json.dumps({"seconds": time.monotonic() - started, "models": summary}))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

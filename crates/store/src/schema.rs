@@ -1,0 +1,64 @@
+//! COLMAP 3.8's database schema, verbatim in meaning, plus Revisit's tables
+//! (prefixed `revisit_`, which COLMAP ignores).
+
+pub const SCHEMA: &str = "
+PRAGMA foreign_keys = ON;
+PRAGMA synchronous = NORMAL;
+CREATE TABLE IF NOT EXISTS cameras (
+    camera_id INTEGER PRIMARY KEY AUTOINCREMENT NOT NULL,
+    model INTEGER NOT NULL,
+    width INTEGER NOT NULL,
+    height INTEGER NOT NULL,
+    params BLOB,
+    prior_focal_length INTEGER NOT NULL);
+CREATE TABLE IF NOT EXISTS images (
+    image_id INTEGER PRIMARY KEY AUTOINCREMENT NOT NULL,
+    name TEXT NOT NULL UNIQUE,
+    camera_id INTEGER NOT NULL,
+    prior_qw REAL, prior_qx REAL, prior_qy REAL, prior_qz REAL,
+    prior_tx REAL, prior_ty REAL, prior_tz REAL,
+    CONSTRAINT image_id_check CHECK(image_id >= 0 and image_id < 2147483647),
+    FOREIGN KEY(camera_id) REFERENCES cameras(camera_id));
+CREATE UNIQUE INDEX IF NOT EXISTS index_name ON images(name);
+CREATE TABLE IF NOT EXISTS keypoints (
+    image_id INTEGER PRIMARY KEY NOT NULL,
+    rows INTEGER NOT NULL,
+    cols INTEGER NOT NULL,
+    data BLOB,
+    FOREIGN KEY(image_id) REFERENCES images(image_id) ON DELETE CASCADE);
+CREATE TABLE IF NOT EXISTS descriptors (
+    image_id INTEGER PRIMARY KEY NOT NULL,
+    rows INTEGER NOT NULL,
+    cols INTEGER NOT NULL,
+    data BLOB,
+    FOREIGN KEY(image_id) REFERENCES images(image_id) ON DELETE CASCADE);
+CREATE TABLE IF NOT EXISTS matches (
+    pair_id INTEGER PRIMARY KEY NOT NULL,
+    rows INTEGER NOT NULL,
+    cols INTEGER NOT NULL,
+    data BLOB);
+CREATE TABLE IF NOT EXISTS two_view_geometries (
+    pair_id INTEGER PRIMARY KEY NOT NULL,
+    rows INTEGER NOT NULL,
+    cols INTEGER NOT NULL,
+    data BLOB,
+    config INTEGER NOT NULL,
+    F BLOB, E BLOB, H BLOB, qvec BLOB, tvec BLOB);
+
+CREATE TABLE IF NOT EXISTS revisit_settings (
+    key TEXT PRIMARY KEY NOT NULL,
+    value TEXT NOT NULL);
+CREATE TABLE IF NOT EXISTS revisit_sessions (
+    name TEXT PRIMARY KEY NOT NULL,
+    source TEXT NOT NULL,
+    camera_id INTEGER NOT NULL REFERENCES cameras(camera_id));
+CREATE TABLE IF NOT EXISTS revisit_pairs (
+    pair_id INTEGER PRIMARY KEY NOT NULL,
+    image_id1 INTEGER NOT NULL,
+    image_id2 INTEGER NOT NULL,
+    kind TEXT NOT NULL,
+    method TEXT NOT NULL,
+    roll_deg INTEGER NOT NULL,
+    num_matches INTEGER NOT NULL,
+    num_inliers INTEGER NOT NULL);
+";

@@ -1,0 +1,96 @@
+use revisit_core::{Camera, Features, Keypoint, TwoViewConfig, TwoViewGeometry};
+
+use super::*;
+
+fn features(n: usize, seed: u8) -> Features {
+    Features {
+        keypoints: (0..n)
+            .map(|i| Keypoint { x: i as f32 + 0.5, y: f32::from(seed), scale: 2.0, orientation: 0.25 })
+            .collect(),
+        descriptors: (0..n * 128).map(|i| (i as u8).wrapping_add(seed)).collect(),
+        descriptor_dim: 128,
+    }
+}
+
+fn store_with_images() -> (tempfile::TempDir, Store, BTreeMap<String, ImageId>) {
+    let dir = tempfile::tempdir().unwrap();
+    let mut store = Store::open(&dir.path().join("database.db")).unwrap();
+    let session = store.ensure_session("2019", "/data/2019", &Camera::default_for_size(0, 640, 480)).unwrap();
+    let names = vec!["2019/a.png".to_string(), "2019/b.png".to_string()];
+    let ids = store.ensure_images(&names, session.camera_id).unwrap();
+    (dir, store, ids)
+}
+
+#[test]
+fn features_round_trip() {
+    let (_dir, mut store, ids) = store_with_images();
+    let id = ids["2019/a.png"];
+    let written = features(5, 3);
+    store.write_features(id, &written).unwrap();
+    let read = store.read_features(id).unwrap();
+    assert_eq!(read.descriptors, written.descriptors);
+    for (a, b) in read.keypoints.iter().zip(&written.keypoints) {
+        assert!((a.x - b.x).abs() < 1e-6 && (a.scale - b.scale).abs() < 1e-5);
+        assert!((a.orientation - b.orientation).abs() < 1e-5);
+    }
+    assert_eq!(store.images_with_features().unwrap(), BTreeSet::from([id]));
+}
+
+#[test]
+fn reopening_keeps_everything_and_adds_nothing_twice() {
+    let (dir, mut store, ids) = store_with_images();
+    store.write_features(ids["2019/a.png"], &features(3, 1)).unwrap();
+    drop(store);
+    let mut store = Store::open(&dir.path().join("database.db")).unwrap();
+    let session = store.ensure_session("2019", "/data/2019", &Camera::default_for_size(0, 640, 480)).unwrap();
+    let again = store.ensure_images(&["2019/a.png".to_string()], session.camera_id).unwrap();
+    assert_eq!(again, ids);
+    assert_eq!(store.sessions().unwrap().len(), 1);
+    assert_eq!(store.images_with_features().unwrap().len(), 1);
+}
+
+#[test]
+fn a_session_cannot_change_its_source() {
+    let (_dir, mut store, _) = store_with_images();
+    let err = store.ensure_session("2019", "/elsewhere", &Camera::default_for_size(0, 640, 480)).unwrap_err();
+    assert!(err.to_string().contains("session \"2019\" was added from /data/2019, not /elsewhere"), "{err}");
+}
+
+#[test]
+fn settings_are_pinned() {
+    let (_dir, store, _) = store_with_images();
+    store.pin_setting("sift", "a").unwrap();
+    store.pin_setting("sift", "a").unwrap();
+    assert!(matches!(store.pin_setting("sift", "b"), Err(StoreError::SettingMismatch { .. })));
+}
+
+#[test]
+fn pairs_are_stored_in_colmap_order() {
+    let (_dir, mut store, ids) = store_with_images();
+    let (a, b) = (ids["2019/a.png"], ids["2019/b.png"]);
+    let geometry = TwoViewGeometry {
+        config: TwoViewConfig::Uncalibrated,
+        inlier_matches: vec![[4, 1]],
+        f: Some(nalgebra::Matrix3::identity()),
+        e: None,
+        h: None,
+        cam2_from_cam1: None,
+    };
+    // Given as (b, a): stored as (a, b) with the columns swapped.
+    let record = PairRecord {
+        image_id1: b,
+        image_id2: a,
+        kind: "intra".into(),
+        method: "sift".into(),
+        roll_deg: 0,
+        num_matches: 2,
+        num_inliers: 1,
+    };
+    store.write_pair(&record, &[[4, 1], [5, 2]], &geometry).unwrap();
+    let pair = revisit_core::pair_id(a, b);
+    assert_eq!(store.matched_pairs().unwrap(), BTreeSet::from([pair]));
+    let (config, inliers) = store.two_view_geometry(pair).unwrap().unwrap();
+    assert_eq!(config, TwoViewConfig::Uncalibrated);
+    assert_eq!(inliers, vec![[1, 4]]);
+    assert_eq!(store.pair_records().unwrap()[0].image_id1, a.min(b));
+}
