@@ -1,6 +1,8 @@
 //! Logging and progress bars, shared by every subcommand.
 
-use indicatif::{ProgressBar, ProgressStyle};
+use std::sync::Mutex;
+
+use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
 use tracing_subscriber::EnvFilter;
 
 /// Logs go to stderr; `RUST_LOG` overrides the verbosity flag.
@@ -14,12 +16,43 @@ pub fn init_logging(verbose: u8) {
     tracing_subscriber::fmt().with_env_filter(filter).with_writer(std::io::stderr).with_target(false).init();
 }
 
-/// A progress bar for a stage of `len` steps (hidden when stderr is not a terminal).
+/// A progress bar for a stage of `len` steps, drawn on stderr (indicatif hides
+/// it when stderr is not a terminal).
 pub fn bar(len: u64, stage: &str) -> ProgressBar {
-    let bar = ProgressBar::new(len);
+    let bar = ProgressBar::with_draw_target(Some(len), ProgressDrawTarget::stderr());
     if let Ok(style) = ProgressStyle::with_template("{prefix:>12} [{bar:30}] {pos}/{len} {per_sec} eta {eta} {msg}") {
         bar.set_style(style.progress_chars("=> "));
     }
     bar.set_prefix(stage.to_owned());
     bar
+}
+
+/// The pipeline's progress as bars, one per stage.
+#[derive(Default)]
+pub struct Bars {
+    current: Mutex<Option<ProgressBar>>,
+}
+
+impl revisit_pipeline::Progress for Bars {
+    fn start(&self, stage: &str, len: u64) {
+        if let Ok(mut current) = self.current.lock() {
+            *current = Some(bar(len, stage));
+        }
+    }
+
+    fn advance(&self) {
+        if let Ok(current) = self.current.lock() {
+            if let Some(bar) = current.as_ref() {
+                bar.inc(1);
+            }
+        }
+    }
+
+    fn finish(&self) {
+        if let Ok(mut current) = self.current.lock() {
+            if let Some(bar) = current.take() {
+                bar.finish_and_clear();
+            }
+        }
+    }
 }

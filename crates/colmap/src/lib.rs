@@ -1,1 +1,17 @@
-//! revisit-colmap (see ARCHITECTURE.md).
+//! revisit-colmap: COLMAP models on disk and the COLMAP mapping driver.
+//!
+//! [`model`] reads and writes sparse models (`cameras`, `images`, `points3D`)
+//! in COLMAP's binary and text forms, byte for byte as COLMAP 3.8 and
+//! pycolmap 4.2.1 do, plus a PLY export of the points. The decoders and
+//! encoders work on byte slices and strings; thin wrappers do the file I/O.
+//!
+//! Invariant: this is the only crate that starts Python.
+
+mod mapper;
+pub mod model;
+
+pub use mapper::{find_python, run_mapper, Engine, MapperError, MapperOptions, ModelSummary, PYTHON_ENV};
+
+pub use model::{
+    read_model, read_models, session_palette, write_binary, write_ply, write_text, ColmapError, ModelFormat, PlyColors,
+};

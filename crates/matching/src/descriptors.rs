@@ -1,4 +1,3 @@
-use nalgebra::DMatrix;
 use revisit_core::Features;
 use serde::{Deserialize, Serialize};
 
@@ -31,70 +30,118 @@ impl MatchOptions {
     }
 }
 
-/// Rows of L2-normalised descriptors as an (n x dim) matrix.
-fn normalised(features: &Features) -> DMatrix<f32> {
+/// L2-normalised descriptors, row-major, `dim` values per row.
+fn normalised(features: &Features) -> Vec<f32> {
     let dim = features.descriptor_dim.max(1);
-    let n = features.descriptors.len() / dim;
-    let mut m = DMatrix::<f32>::zeros(n, dim);
-    for (i, row) in features.descriptors.chunks_exact(dim).enumerate() {
+    let mut out = Vec::with_capacity(features.descriptors.len());
+    for row in features.descriptors.chunks_exact(dim) {
         let norm = row.iter().map(|&v| f32::from(v) * f32::from(v)).sum::<f32>().sqrt().max(1e-12);
-        for (j, &v) in row.iter().enumerate() {
-            m[(i, j)] = f32::from(v) / norm;
-        }
+        out.extend(row.iter().map(|&v| f32::from(v) / norm));
     }
-    m
+    out
 }
 
-/// Best and second-best (similarity, index) per row of a similarity matrix.
-fn best_two_per_row(similarity: &DMatrix<f32>) -> Vec<(f32, f32, usize)> {
-    (0..similarity.nrows())
-        .map(|i| {
-            let (mut best, mut second, mut best_j) = (-1.0f32, -1.0f32, usize::MAX);
-            for (j, &s) in similarity.row(i).iter().enumerate() {
-                if s > best {
-                    second = best;
-                    best = s;
-                    best_j = j;
-                } else if s > second {
-                    second = s;
-                }
-            }
-            (best, second, best_j)
-        })
-        .collect()
+/// Best and second-best similarity, and the index of the best.
+#[derive(Clone, Copy)]
+struct BestTwo {
+    best: f32,
+    second: f32,
+    index: usize,
+}
+
+impl BestTwo {
+    const NONE: Self = Self { best: -1.0, second: -1.0, index: usize::MAX };
+
+    fn push(&mut self, similarity: f32, index: usize) {
+        if similarity > self.best {
+            self.second = self.best;
+            self.best = similarity;
+            self.index = index;
+        } else if similarity > self.second {
+            self.second = similarity;
+        }
+    }
 }
 
 fn angle(similarity: f32) -> f32 {
     similarity.clamp(-1.0, 1.0).acos()
 }
 
+/// Rows of `a` per block of the similarity matrix (bounds memory at 8192 columns to 32 MiB).
+const BLOCK_ROWS: usize = 1024;
+
 /// Matches descriptors of two images: nearest neighbour by angle, ratio test,
 /// distance cap, optional mutual check. Returns `[index in a, index in b]`
 /// pairs sorted by index in `a`.
 pub fn match_descriptors(a: &Features, b: &Features, options: &MatchOptions) -> Vec<[u32; 2]> {
-    if a.is_empty() || b.is_empty() || a.descriptor_dim != b.descriptor_dim {
+    let dim = a.descriptor_dim;
+    if a.is_empty() || b.is_empty() || dim == 0 || dim != b.descriptor_dim {
         return Vec::new();
     }
     let (da, db) = (normalised(a), normalised(b));
-    let similarity = &da * db.transpose();
-    let forward = best_two_per_row(&similarity);
-    let backward = if options.cross_check {
-        best_two_per_row(&similarity.transpose())
-    } else {
-        Vec::new()
-    };
+    let (na, nb) = (da.len() / dim, db.len() / dim);
+    let mut forward = vec![BestTwo::NONE; na];
+    let mut backward = vec![BestTwo::NONE; nb];
+    let mut similarity = vec![0.0f32; BLOCK_ROWS.min(na) * nb];
+    for block_start in (0..na).step_by(BLOCK_ROWS) {
+        let rows = BLOCK_ROWS.min(na - block_start);
+        let block = &da[block_start * dim..(block_start + rows) * dim];
+        // similarity (rows x nb, row-major) = block (rows x dim) * db^T (dim x nb).
+        matrixmultiply_sgemm(block, &db, &mut similarity[..rows * nb], rows, dim, nb);
+        for (r, row) in similarity[..rows * nb].chunks_exact(nb).enumerate() {
+            let i = block_start + r;
+            let mut best = BestTwo::NONE;
+            for (j, (&s, back)) in row.iter().zip(backward.iter_mut()).enumerate() {
+                best.push(s, j);
+                back.push(s, i);
+            }
+            if let Some(slot) = forward.get_mut(i) {
+                *slot = best;
+            }
+        }
+    }
     let mut matches = Vec::new();
-    for (i, &(best, second, j)) in forward.iter().enumerate() {
-        let (best_angle, second_angle) = (angle(best), angle(second));
+    for (i, f) in forward.iter().enumerate() {
+        let (best_angle, second_angle) = (angle(f.best), angle(f.second));
         if best_angle > options.max_distance || best_angle >= options.max_ratio * second_angle {
             continue;
         }
-        if options.cross_check && backward.get(j).map(|&(_, _, back)| back) != Some(i) {
+        if options.cross_check && backward.get(f.index).map(|b| b.index) != Some(i) {
             continue;
         }
-        matches.push([i as u32, j as u32]);
+        matches.push([i as u32, f.index as u32]);
     }
     matches
+}
+
+/// `c (m x n) = a (m x k) * b^T` with `b` given as (n x k), all row-major.
+fn matrixmultiply_sgemm(a: &[f32], b: &[f32], c: &mut [f32], m: usize, k: usize, n: usize) {
+    if a.len() < m * k || b.len() < n * k || c.len() < m * n {
+        return;
+    }
+    // SAFETY: matrixmultiply offers only a raw-pointer API. The slices were
+    // checked above to hold m*k, n*k and m*n values, and the strides describe
+    // exactly those row-major layouts, so every access is in bounds. This is
+    // the workspace's one exception to `unsafe_code`.
+    #[allow(unsafe_code)]
+    unsafe {
+        matrixmultiply::sgemm(
+            m,
+            k,
+            n,
+            1.0,
+            a.as_ptr(),
+            k as isize,
+            1,
+            b.as_ptr(),
+            1,
+            k as isize,
+            0.0,
+            c.as_mut_ptr(),
+            n as isize,
+            1,
+        );
+    }
 }
 
 #[cfg(test)]

@@ -71,6 +71,14 @@ impl Store {
         Ok(store)
     }
 
+    /// Opens an existing store read-only, e.g. to watch a running
+    /// reconstruction without taking a write lock.
+    pub fn open_read_only(path: &Path) -> Result<Self> {
+        let conn = Connection::open_with_flags(path, rusqlite::OpenFlags::SQLITE_OPEN_READ_ONLY)
+            .map_err(|source| StoreError::Sqlite { path: path.into(), source })?;
+        Ok(Self { conn, path: path.to_path_buf() })
+    }
+
     pub fn path(&self) -> &Path {
         &self.path
     }

@@ -1,6 +1,285 @@
-#[derive(clap::Args)]
-pub struct Args {}
+//! `revisit synth`: render a synthetic multi-visit reef survey and write its
+//! ground truth.
+//!
+//! Layout of `--out DIR`:
+//! - `sessions/<name>/<name>_NNNN.png`: the images, one folder per session;
+//! - `truth/`: the COLMAP text model of the true cameras, `poses.csv`,
+//!   `intrinsics.json`, `survey.json`, `overlaps.csv`,
+//!   `evaluation_points_<A>-<B>.csv` per session pair, and `README.txt`.
 
-pub fn run(_args: Args) -> anyhow::Result<()> {
-    anyhow::bail!("not implemented yet")
+use std::fmt::Write as _;
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+use anyhow::Context;
+use rayon::prelude::*;
+use serde::Serialize;
+use tracing::info;
+
+use revisit_synth::{ChangeGrade, EvaluationOptions, EvaluationPair, Survey, SynthOptions};
+
+/// Cross-session pairs with a smaller overlap are not listed in overlaps.csv.
+const MIN_LISTED_OVERLAP: f64 = 0.1;
+
+#[derive(clap::Args)]
+pub struct Args {
+    /// Output folder (created if missing): sessions/<name>/*.png and truth/.
+    #[arg(long)]
+    out: PathBuf,
+    /// Number of visits.
+    #[arg(long, default_value_t = 3, value_parser = clap::value_parser!(u16).range(1..=1000))]
+    sessions: u16,
+    /// Images per visit (at least 2).
+    #[arg(long, default_value_t = 60, value_parser = clap::value_parser!(u32).range(2..=100_000))]
+    images_per_session: u32,
+    /// Seed of everything random; the same seed gives byte-identical images.
+    #[arg(long, default_value_t = 0)]
+    seed: u64,
+    /// Change between visits: none, mild, strong or storm.
+    #[arg(long, default_value = "mild", value_parser = parse_change)]
+    change: ChangeGrade,
+    /// Image size WxH in pixels (at least 64x48).
+    #[arg(long, default_value = "640x480", value_parser = parse_size)]
+    size: (u32, u32),
+    /// Evaluation image pairs per session pair.
+    #[arg(long, default_value_t = 30)]
+    eval_pairs: usize,
 }
+
+fn parse_change(text: &str) -> Result<ChangeGrade, String> {
+    text.parse::<ChangeGrade>().map_err(|e| e.to_string())
+}
+
+fn parse_size(text: &str) -> Result<(u32, u32), String> {
+    let (w, h) = text.split_once(['x', 'X']).ok_or_else(|| format!("expected WxH such as 640x480, got {text:?}"))?;
+    let parse = |s: &str| s.trim().parse::<u32>().map_err(|_| format!("expected WxH such as 640x480, got {text:?}"));
+    let (w, h) = (parse(w)?, parse(h)?);
+    if w < revisit_synth::MIN_WIDTH || h < revisit_synth::MIN_HEIGHT {
+        return Err(format!("{w}x{h} is smaller than the minimum {}x{}", revisit_synth::MIN_WIDTH, revisit_synth::MIN_HEIGHT));
+    }
+    if w > revisit_synth::MAX_SIDE || h > revisit_synth::MAX_SIDE {
+        return Err(format!("{w}x{h} is larger than the maximum {0}x{0}", revisit_synth::MAX_SIDE));
+    }
+    Ok((w, h))
+}
+
+pub fn run(args: Args) -> anyhow::Result<()> {
+    let options = SynthOptions {
+        sessions: usize::from(args.sessions),
+        images_per_session: args.images_per_session as usize,
+        seed: args.seed,
+        change: args.change,
+        width: args.size.0,
+        height: args.size.1,
+    };
+    let survey = revisit_synth::plan(&options).context("planning the survey")?;
+    info!(
+        "synthetic reef {:.1} m across, {} sessions x {} images, change {}, seed {}",
+        survey.site_size_m(),
+        options.sessions,
+        options.images_per_session,
+        options.change,
+        options.seed
+    );
+    let sessions_dir = args.out.join("sessions");
+    let truth_dir = args.out.join("truth");
+    for session in survey.sessions() {
+        let dir = sessions_dir.join(&session.name);
+        std::fs::create_dir_all(&dir).with_context(|| format!("creating {}", dir.display()))?;
+    }
+    std::fs::create_dir_all(&truth_dir).with_context(|| format!("creating {}", truth_dir.display()))?;
+
+    let build_start = Instant::now();
+    for s in 0..survey.sessions().len() {
+        survey.prepare(s).context("building the scene")?;
+    }
+    let build_secs = build_start.elapsed().as_secs_f64();
+    info!("built the scene textures in {build_secs:.1} s");
+
+    let count = survey.num_images();
+    let bar = crate::progress::bar(count as u64, "render");
+    let render_start = Instant::now();
+    (0..count).into_par_iter().try_for_each(|index| -> anyhow::Result<()> {
+        let image = survey.image(index)?;
+        let rendered = survey.render(index).with_context(|| format!("rendering {}", image.name))?;
+        let path = sessions_dir.join(&image.name);
+        rendered.rgb.save(&path).with_context(|| format!("writing {}", path.display()))?;
+        bar.inc(1);
+        Ok(())
+    })?;
+    bar.finish_and_clear();
+    let render_secs = render_start.elapsed().as_secs_f64();
+
+    write_truth(&survey, &truth_dir, args.eval_pairs)?;
+    info!(
+        "rendered {count} images in {render_secs:.1} s = {:.1} img/s ({}x{}, scene build {build_secs:.1} s); wrote {}",
+        count as f64 / render_secs.max(1e-9),
+        options.width,
+        options.height,
+        args.out.display()
+    );
+    Ok(())
+}
+
+fn write_file(path: &Path, contents: &str) -> anyhow::Result<()> {
+    std::fs::write(path, contents).with_context(|| format!("writing {}", path.display()))
+}
+
+/// A number as the shortest text that reads back to the same f64.
+fn num(value: f64) -> String {
+    format!("{value:?}")
+}
+
+fn write_truth(survey: &Survey, dir: &Path, eval_pairs: usize) -> anyhow::Result<()> {
+    revisit_colmap::write_text(&survey.truth_model(), dir).with_context(|| format!("writing the truth model to {}", dir.display()))?;
+
+    let mut poses = String::from("session,image,qw,qx,qy,qz,tx,ty,tz\n");
+    for session in survey.sessions() {
+        for image in &session.images {
+            let q = image.cam_from_world.wxyz();
+            let t = image.cam_from_world.translation;
+            let _ = writeln!(
+                poses,
+                "{},{},{},{},{},{},{},{},{}",
+                session.name,
+                image.file,
+                num(q[0]),
+                num(q[1]),
+                num(q[2]),
+                num(q[3]),
+                num(t.x),
+                num(t.y),
+                num(t.z)
+            );
+        }
+    }
+    write_file(&dir.join("poses.csv"), &poses)?;
+
+    let intrinsics = serde_json::to_string_pretty(&survey.intrinsics()).context("encoding intrinsics")?;
+    write_file(&dir.join("intrinsics.json"), &(intrinsics + "\n"))?;
+    let summary = serde_json::to_string_pretty(&summary(survey)).context("encoding the survey summary")?;
+    write_file(&dir.join("survey.json"), &(summary + "\n"))?;
+
+    let started = Instant::now();
+    let overlaps = survey.overlaps(MIN_LISTED_OVERLAP).context("computing overlaps")?;
+    let mut csv = String::from("img0,img1,overlap\n");
+    for o in &overlaps {
+        let _ = writeln!(csv, "{},{},{:.4}", o.img0, o.img1, o.overlap);
+    }
+    write_file(&dir.join("overlaps.csv"), &csv)?;
+    info!("{} overlapping cross-session pairs ({:.1} s)", overlaps.len(), started.elapsed().as_secs_f64());
+
+    let options = EvaluationOptions { pairs: eval_pairs, ..EvaluationOptions::default() };
+    let sessions = survey.sessions();
+    for a in 0..sessions.len() {
+        for b in a + 1..sessions.len() {
+            let (Some(sa), Some(sb)) = (sessions.get(a), sessions.get(b)) else { continue };
+            let pairs = survey
+                .evaluation_points(a, b, &overlaps, &options)
+                .with_context(|| format!("picking evaluation points for {}-{}", sa.name, sb.name))?;
+            let path = dir.join(format!("evaluation_points_{}-{}.csv", sa.name, sb.name));
+            write_file(&path, &evaluation_csv(&pairs))?;
+            let points: usize = pairs.iter().map(|p| p.uv_clicked.len()).sum();
+            info!("{}: {} pairs, {} points", path.display(), pairs.len(), points);
+        }
+    }
+    write_file(&dir.join("README.txt"), README)?;
+    Ok(())
+}
+
+/// A JSON list of [u, v] pairs, e.g. `[[12.5, 33.0], [100.0, 7.25]]`.
+fn uv_list(points: &[[f64; 2]]) -> String {
+    let round = |v: f64| (v * 1e6).round() / 1e6;
+    let items: Vec<String> = points.iter().map(|p| format!("[{}, {}]", num(round(p[0])), num(round(p[1])))).collect();
+    format!("[{}]", items.join(", "))
+}
+
+/// The published evaluation format, with standard CSV quoting.
+fn evaluation_csv(pairs: &[EvaluationPair]) -> String {
+    let mut csv = String::from("img0,img1,uv_clicked,uv_groundtruth\n");
+    for p in pairs {
+        let _ = writeln!(csv, "{},{},\"{}\",\"{}\"", p.img0, p.img1, uv_list(&p.uv_clicked), uv_list(&p.uv_groundtruth));
+    }
+    csv
+}
+
+#[derive(Serialize)]
+struct SessionSummary<'a> {
+    name: &'a str,
+    altitude_m: f64,
+    heading_deg: f64,
+    offset_m: [f64; 2],
+    lines: usize,
+    images: usize,
+    appearance: &'a revisit_synth::Appearance,
+    structures: usize,
+    /// Structures identical to the previous session (growth, bleaching and
+    /// moves excluded).
+    unchanged_from_previous: usize,
+}
+
+#[derive(Serialize)]
+struct Summary<'a> {
+    options: &'a SynthOptions,
+    site_size_m: f64,
+    sessions: Vec<SessionSummary<'a>>,
+}
+
+fn summary(survey: &Survey) -> Summary<'_> {
+    let sessions = survey
+        .sessions()
+        .iter()
+        .enumerate()
+        .map(|(s, plan)| {
+            let objects = survey.objects(s).unwrap_or(&[]);
+            let unchanged = if s == 0 { objects.len() } else { objects.iter().filter(|o| survey.object_unchanged(o.id, s - 1, s)).count() };
+            SessionSummary {
+                name: &plan.name,
+                altitude_m: plan.altitude_m,
+                heading_deg: plan.heading_deg,
+                offset_m: plan.offset_m,
+                lines: plan.lines,
+                images: plan.images.len(),
+                appearance: &plan.appearance,
+                structures: objects.len(),
+                unchanged_from_previous: unchanged,
+            }
+        })
+        .collect();
+    Summary { options: survey.options(), site_size_m: survey.site_size_m(), sessions }
+}
+
+const README: &str = "\
+Ground truth of a synthetic multi-visit reef survey rendered by `revisit synth`.
+
+World frame: x east, y north, z up, metres; the site is a square centred on the
+origin. Camera frame and pixels follow COLMAP: x right, y down, z forward; the
+centre of the top-left pixel is (0.5, 0.5). Poses are cam_from_world
+(x_cam = R x_world + t). Images are named session/file, e.g. s1/s1_0000.png,
+relative to ../sessions/.
+
+cameras.txt, images.txt, points3D.txt
+    COLMAP text model of the exact cameras used to render: one PINHOLE camera
+    per session, every image with its true pose, no 3D points.
+poses.csv
+    session,image,qw,qx,qy,qz,tx,ty,tz: the same poses (cam_from_world, COLMAP
+    quaternion order w, x, y, z); image is the file name within the session.
+intrinsics.json
+    Per session: camera id, model, size and fx, fy, cx, cy (pixels).
+survey.json
+    Options, site size, and per session the altitude, heading (direction of
+    the survey lines and of the image's up, degrees from east), track offset,
+    water and light parameters, and how many structures stayed unchanged.
+overlaps.csv
+    img0,img1,overlap for cross-session pairs (img0 from the earlier session)
+    that truly overlap: the fraction of img0's pixels whose seabed point is
+    visible in img1 at the same depth (changed or occluded structures do not
+    count). Pairs above 0.1 are listed; estimated on an 80x60 grid.
+evaluation_points_A-B.csv
+    The published evaluation format for sessions A and B:
+    img0,img1,uv_clicked,uv_groundtruth, each of the two last cells a JSON
+    list of [u, v] pixel positions. Clicked pixels lie on textured structure
+    that is unchanged between A and B, away from depth edges, and visible in
+    img1 (depth test against img1's rendered depth); uv_groundtruth is the
+    exact projection of the same 3D point into img1.
+";

@@ -1,0 +1,253 @@
+//! Error histograms drawn with plain pixels (bars, axes, ticks and a tiny
+//! built-in bitmap font), in the manner of the published figures.
+
+use image::{Rgb, RgbImage};
+
+/// Options of [`histogram`].
+#[derive(Clone, Debug, PartialEq)]
+pub struct HistogramOptions {
+    /// Image size in pixels. Default 800 x 480.
+    pub width: u32,
+    pub height: u32,
+    /// Number of bins. Default 20.
+    pub bins: usize,
+    /// Right end of the x axis in pixels of error; errors beyond it fall in
+    /// the last bin. Default `None`: the 98th percentile, rounded up to a
+    /// round number.
+    pub max_px: Option<f64>,
+}
+
+impl Default for HistogramOptions {
+    fn default() -> Self {
+        Self { width: 800, height: 480, bins: 20, max_px: None }
+    }
+}
+
+const WHITE: Rgb<u8> = Rgb([255, 255, 255]);
+const BLACK: Rgb<u8> = Rgb([0, 0, 0]);
+const BAR: Rgb<u8> = Rgb([70, 130, 180]);
+const MEDIAN: Rgb<u8> = Rgb([214, 39, 40]);
+const GRID: Rgb<u8> = Rgb([225, 225, 225]);
+
+const LEFT: u32 = 70;
+const RIGHT: u32 = 30;
+const TOP: u32 = 50;
+const BOTTOM: u32 = 60;
+const FONT_SCALE: u32 = 2;
+
+/// A histogram of reprojection errors: x = error in pixels (bins), y = number
+/// of clicks, the median marked by a red line. `title` is drawn upper-case.
+pub fn histogram(errors_px: &[f64], title: &str, options: &HistogramOptions) -> RgbImage {
+    let width = options.width.max(LEFT + RIGHT + 100);
+    let height = options.height.max(TOP + BOTTOM + 100);
+    let bins = options.bins.max(1);
+    let mut img = RgbImage::from_pixel(width, height, WHITE);
+    let (plot_w, plot_h) = (width - LEFT - RIGHT, height - TOP - BOTTOM);
+    let (x0, y0) = (LEFT, TOP + plot_h); // origin of the axes, in image pixels
+
+    let errors: Vec<f64> = errors_px.iter().copied().filter(|e| e.is_finite()).collect();
+    let mut sorted = errors.clone();
+    sorted.sort_by(f64::total_cmp);
+    let auto_max = sorted.get((sorted.len() * 98 / 100).min(sorted.len().saturating_sub(1))).copied().unwrap_or(1.0);
+    let bin_width_px = nice_ceil(options.max_px.unwrap_or(auto_max).max(1e-9) / bins as f64);
+    let x_max_px = bin_width_px * bins as f64;
+    let mut counts = vec![0usize; bins];
+    for e in &errors {
+        let bin = ((e / bin_width_px).floor().max(0.0) as usize).min(bins - 1);
+        if let Some(c) = counts.get_mut(bin) {
+            *c += 1;
+        }
+    }
+    let max_count = counts.iter().copied().max().unwrap_or(0).max(1);
+    let y_step = nice_ceil(max_count as f64 / 5.0).max(1.0);
+    let y_max = (max_count as f64 / y_step).ceil() * y_step;
+    let x_of = |v: f64| x0 as f64 + v / x_max_px * plot_w as f64;
+    let y_of = |v: f64| y0 as f64 - v / y_max * plot_h as f64;
+
+    // Horizontal grid and y ticks.
+    let mut tick = 0.0;
+    while tick <= y_max + 1e-9 {
+        let y = y_of(tick).round() as u32;
+        hline(&mut img, x0, x0 + plot_w, y, GRID);
+        hline(&mut img, x0 - 6, x0, y, BLACK);
+        let label = format_tick(tick);
+        let label_w = text_width(&label);
+        draw_text(&mut img, (x0 - 10).saturating_sub(label_w), y.saturating_sub(5), &label, BLACK);
+        tick += y_step;
+    }
+    // Bars.
+    for (bin, count) in counts.iter().enumerate() {
+        if *count == 0 {
+            continue;
+        }
+        let left = x_of(bin as f64 * bin_width_px).round() as u32 + 1;
+        let right = x_of((bin + 1) as f64 * bin_width_px).round() as u32 - 1;
+        let top = y_of(*count as f64).round() as u32;
+        fill_rect(&mut img, left, top, right, y0, BAR);
+    }
+    // Axes and x ticks (every other bin when crowded).
+    hline(&mut img, x0, x0 + plot_w, y0, BLACK);
+    vline(&mut img, x0, TOP, y0, BLACK);
+    let label_every = if bins > 10 { bins.div_ceil(10) } else { 1 };
+    for bin in 0..=bins {
+        let x = x_of(bin as f64 * bin_width_px).round() as u32;
+        vline(&mut img, x, y0, y0 + 5, BLACK);
+        if bin % label_every == 0 {
+            let label = format_tick(bin as f64 * bin_width_px);
+            draw_text(&mut img, x.saturating_sub(text_width(&label) / 2), y0 + 10, &label, BLACK);
+        }
+    }
+    let x_label = "ERROR (PX)";
+    draw_text(&mut img, x0 + plot_w / 2 - text_width(x_label) / 2, y0 + 35, x_label, BLACK);
+    draw_text(&mut img, 8, TOP - 20, "N", BLACK);
+    // Median.
+    let (median, _) = crate::median_mean(&errors);
+    if let Some(median) = median {
+        let x = x_of(median.min(x_max_px)).round() as u32;
+        for dx in 0..2 {
+            vline(&mut img, x + dx, TOP, y0, MEDIAN);
+        }
+        let label = format!("MEDIAN {}", format_value(median));
+        let label_x = if x + 8 + text_width(&label) < width { x + 6 } else { x.saturating_sub(text_width(&label) + 6) };
+        draw_text(&mut img, label_x, TOP + 4, &label, MEDIAN);
+    }
+    let title = format!("{}   N={}", title.to_uppercase(), errors.len());
+    draw_text(&mut img, LEFT, 14, &title, BLACK);
+    img
+}
+
+/// The smallest of 1, 2, 2.5, 5 times a power of ten that is >= `value`.
+fn nice_ceil(value: f64) -> f64 {
+    if !(value.is_finite() && value > 0.0) {
+        return 1.0;
+    }
+    let power = 10f64.powf(value.log10().floor());
+    [1.0, 2.0, 2.5, 5.0, 10.0].iter().map(|m| m * power).find(|v| *v >= value * (1.0 - 1e-12)).unwrap_or(10.0 * power)
+}
+
+fn format_tick(value: f64) -> String {
+    let text = format!("{value:.2}");
+    text.trim_end_matches('0').trim_end_matches('.').to_owned()
+}
+
+fn format_value(value: f64) -> String {
+    if value >= 100.0 {
+        format!("{value:.0}")
+    } else {
+        format!("{value:.2}")
+    }
+}
+
+fn put(img: &mut RgbImage, x: u32, y: u32, color: Rgb<u8>) {
+    if x < img.width() && y < img.height() {
+        img.put_pixel(x, y, color);
+    }
+}
+
+fn hline(img: &mut RgbImage, x_from: u32, x_to: u32, y: u32, color: Rgb<u8>) {
+    for x in x_from..=x_to {
+        put(img, x, y, color);
+    }
+}
+
+fn vline(img: &mut RgbImage, x: u32, y_from: u32, y_to: u32, color: Rgb<u8>) {
+    for y in y_from..=y_to {
+        put(img, x, y, color);
+    }
+}
+
+fn fill_rect(img: &mut RgbImage, left: u32, top: u32, right: u32, bottom: u32, color: Rgb<u8>) {
+    for y in top..=bottom {
+        hline(img, left, right, y, color);
+    }
+}
+
+fn text_width(text: &str) -> u32 {
+    text.chars().count() as u32 * 4 * FONT_SCALE
+}
+
+fn draw_text(img: &mut RgbImage, x: u32, y: u32, text: &str, color: Rgb<u8>) {
+    for (k, c) in text.chars().enumerate() {
+        let rows = glyph(c);
+        let left = x + k as u32 * 4 * FONT_SCALE;
+        for (row, bits) in rows.iter().enumerate() {
+            for col in 0..3u32 {
+                if bits & (0b100 >> col) != 0 {
+                    let (px, py) = (left + col * FONT_SCALE, y + row as u32 * FONT_SCALE);
+                    fill_rect(img, px, py, px + FONT_SCALE - 1, py + FONT_SCALE - 1, color);
+                }
+            }
+        }
+    }
+}
+
+/// A 3x5 bitmap glyph: five rows, three bits each (left bit first).
+fn glyph(c: char) -> [u8; 5] {
+    match c.to_ascii_uppercase() {
+        '0' => [0b111, 0b101, 0b101, 0b101, 0b111],
+        '1' => [0b010, 0b110, 0b010, 0b010, 0b111],
+        '2' => [0b111, 0b001, 0b111, 0b100, 0b111],
+        '3' => [0b111, 0b001, 0b111, 0b001, 0b111],
+        '4' => [0b101, 0b101, 0b111, 0b001, 0b001],
+        '5' => [0b111, 0b100, 0b111, 0b001, 0b111],
+        '6' => [0b111, 0b100, 0b111, 0b101, 0b111],
+        '7' => [0b111, 0b001, 0b001, 0b010, 0b010],
+        '8' => [0b111, 0b101, 0b111, 0b101, 0b111],
+        '9' => [0b111, 0b101, 0b111, 0b001, 0b111],
+        'A' => [0b010, 0b101, 0b111, 0b101, 0b101],
+        'B' => [0b110, 0b101, 0b110, 0b101, 0b110],
+        'C' => [0b011, 0b100, 0b100, 0b100, 0b011],
+        'D' => [0b110, 0b101, 0b101, 0b101, 0b110],
+        'E' => [0b111, 0b100, 0b110, 0b100, 0b111],
+        'F' => [0b111, 0b100, 0b110, 0b100, 0b100],
+        'G' => [0b011, 0b100, 0b101, 0b101, 0b011],
+        'H' => [0b101, 0b101, 0b111, 0b101, 0b101],
+        'I' => [0b111, 0b010, 0b010, 0b010, 0b111],
+        'J' => [0b001, 0b001, 0b001, 0b101, 0b010],
+        'K' => [0b101, 0b101, 0b110, 0b101, 0b101],
+        'L' => [0b100, 0b100, 0b100, 0b100, 0b111],
+        'M' => [0b101, 0b111, 0b111, 0b101, 0b101],
+        'N' => [0b110, 0b101, 0b101, 0b101, 0b101],
+        'O' => [0b010, 0b101, 0b101, 0b101, 0b010],
+        'P' => [0b110, 0b101, 0b110, 0b100, 0b100],
+        'Q' => [0b010, 0b101, 0b101, 0b110, 0b011],
+        'R' => [0b110, 0b101, 0b110, 0b101, 0b101],
+        'S' => [0b011, 0b100, 0b010, 0b001, 0b110],
+        'T' => [0b111, 0b010, 0b010, 0b010, 0b010],
+        'U' => [0b101, 0b101, 0b101, 0b101, 0b111],
+        'V' => [0b101, 0b101, 0b101, 0b101, 0b010],
+        'W' => [0b101, 0b101, 0b111, 0b111, 0b101],
+        'X' => [0b101, 0b101, 0b010, 0b101, 0b101],
+        'Y' => [0b101, 0b101, 0b010, 0b010, 0b010],
+        'Z' => [0b111, 0b001, 0b010, 0b100, 0b111],
+        '.' => [0b000, 0b000, 0b000, 0b000, 0b010],
+        ',' => [0b000, 0b000, 0b000, 0b010, 0b100],
+        '-' => [0b000, 0b000, 0b111, 0b000, 0b000],
+        '+' => [0b000, 0b010, 0b111, 0b010, 0b000],
+        ':' => [0b000, 0b010, 0b000, 0b010, 0b000],
+        '=' => [0b000, 0b111, 0b000, 0b111, 0b000],
+        '>' => [0b100, 0b010, 0b001, 0b010, 0b100],
+        '<' => [0b001, 0b010, 0b100, 0b010, 0b001],
+        '/' => [0b001, 0b001, 0b010, 0b100, 0b100],
+        '_' => [0b000, 0b000, 0b000, 0b000, 0b111],
+        '(' => [0b010, 0b100, 0b100, 0b100, 0b010],
+        ')' => [0b010, 0b001, 0b001, 0b001, 0b010],
+        '%' => [0b101, 0b001, 0b010, 0b100, 0b101],
+        ' ' => [0; 5],
+        _ => [0b111, 0b001, 0b010, 0b000, 0b010],
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn nice_numbers() {
+        assert_eq!(nice_ceil(0.9), 1.0);
+        assert_eq!(nice_ceil(1.2), 2.0);
+        assert_eq!(nice_ceil(2.2), 2.5);
+        assert_eq!(nice_ceil(30.0), 50.0);
+        assert_eq!(nice_ceil(0.05), 0.05);
+    }
+}

@@ -1,0 +1,119 @@
+//! The mapping stage over a work folder: runs COLMAP once over the store, puts
+//! the models where users look for them, and skips or extends work already done.
+
+use std::path::{Path, PathBuf};
+
+use revisit_colmap::{run_mapper, Engine, MapperOptions, ModelSummary};
+use serde::{Deserialize, Serialize};
+
+use crate::PipelineError;
+
+/// What the mapping stage produced.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct MappingOutcome {
+    /// Every model, largest first, with its final folder.
+    pub models: Vec<ModelSummary>,
+    /// The store had not changed since the last mapping: its models were kept.
+    pub reused: bool,
+    /// The previous model was extended rather than rebuilt.
+    pub extended: bool,
+    /// A fingerprint of the store's content that the models were built from.
+    pub inputs: String,
+}
+
+/// Where the models of a work folder live: `WORK/model` for one model,
+/// `WORK/model/1`, `WORK/model/2`, ... (largest first) for several.
+pub fn model_root(work: &Path) -> PathBuf {
+    work.join("model")
+}
+
+fn record_path(work: &Path) -> PathBuf {
+    work.join("mapping.json")
+}
+
+fn io(path: &Path) -> impl FnOnce(std::io::Error) -> PipelineError + '_ {
+    move |source| PipelineError::Io { path: path.to_path_buf(), source }
+}
+
+fn previous(work: &Path) -> Option<MappingOutcome> {
+    let text = std::fs::read_to_string(record_path(work)).ok()?;
+    let outcome: MappingOutcome = serde_json::from_str(&text).ok()?;
+    outcome.models.iter().all(|m| m.path.join("images.bin").is_file()).then_some(outcome)
+}
+
+/// Maps the store at `database` into `work`'s model folder. `inputs` is a
+/// fingerprint of what the store holds: if the last mapping had the same, its
+/// models are kept; if it differs and the engine is incremental, the previous
+/// largest model is extended with the new images.
+pub fn map(
+    python: &Path,
+    database: &Path,
+    image_root: &Path,
+    work: &Path,
+    inputs: &str,
+    options: &MapperOptions,
+) -> Result<MappingOutcome, PipelineError> {
+    let before = previous(work);
+    if let Some(before) = &before {
+        if before.inputs == inputs {
+            tracing::info!("mapping: the store is unchanged since the last run; keeping its models");
+            return Ok(MappingOutcome { reused: true, extended: false, ..before.clone() });
+        }
+    }
+    let staging = work.join(".mapping");
+    let extend = before
+        .as_ref()
+        .and_then(|b| b.models.first())
+        .filter(|_| options.engine == Engine::Incremental)
+        .map(|m| m.path.clone());
+    // Extend from a copy: the models in place are replaced only on success.
+    let extend_copy = match &extend {
+        Some(model) => {
+            let copy = work.join(".mapping-input");
+            copy_dir(model, &copy)?;
+            Some(copy)
+        }
+        None => None,
+    };
+    tracing::info!(extend = ?extend, "mapping with COLMAP");
+    let produced = run_mapper(python, database, image_root, &staging, extend_copy.as_deref(), options)?;
+
+    let root = model_root(work);
+    if root.exists() {
+        std::fs::remove_dir_all(&root).map_err(io(&root))?;
+    }
+    let count = produced.len();
+    let mut models = Vec::with_capacity(count);
+    for (k, model) in produced.into_iter().enumerate() {
+        let target = if count == 1 { root.clone() } else { root.join((k + 1).to_string()) };
+        if let Some(parent) = target.parent() {
+            std::fs::create_dir_all(parent).map_err(io(parent))?;
+        }
+        std::fs::rename(&model.path, &target).map_err(io(&model.path))?;
+        models.push(ModelSummary { path: target, ..model });
+    }
+    std::fs::remove_dir_all(&staging).map_err(io(&staging))?;
+    if let Some(copy) = &extend_copy {
+        std::fs::remove_dir_all(copy).map_err(io(copy))?;
+    }
+    let outcome = MappingOutcome { models, reused: false, extended: extend.is_some(), inputs: inputs.to_owned() };
+    let record = record_path(work);
+    let json = serde_json::to_string_pretty(&outcome).unwrap_or_default();
+    std::fs::write(&record, json).map_err(io(&record))?;
+    Ok(outcome)
+}
+
+fn copy_dir(from: &Path, to: &Path) -> Result<(), PipelineError> {
+    if to.exists() {
+        std::fs::remove_dir_all(to).map_err(io(to))?;
+    }
+    std::fs::create_dir_all(to).map_err(io(to))?;
+    for entry in std::fs::read_dir(from).map_err(io(from))? {
+        let entry = entry.map_err(io(from))?;
+        if entry.path().is_file() {
+            let target = to.join(entry.file_name());
+            std::fs::copy(entry.path(), &target).map_err(io(&target))?;
+        }
+    }
+    Ok(())
+}

@@ -1,0 +1,239 @@
+use std::collections::{BTreeMap, HashMap};
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::mpsc;
+
+use rayon::prelude::*;
+use revisit_core::{pair_id, Features, ImageId};
+use revisit_features::SiftOptions;
+use revisit_matching::{intra_session_pairs, match_descriptors, verify, MatchOptions, PairOptions, VerifyOptions};
+use revisit_store::{PairRecord, Store};
+use serde::Serialize;
+
+use crate::ingest::SessionImages;
+use crate::{PipelineError, Progress};
+
+/// What a stage did: new work, and finished work found in the store.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize)]
+pub struct StageCounts {
+    pub done: usize,
+    pub reused: usize,
+}
+
+/// Runs `work` over `items` in parallel and hands each result to `write` on
+/// the calling thread, in item order (so the store is written
+/// deterministically). Stops at the first error; results already written stay.
+fn parallel_in_order<T, R, E>(
+    items: &[T],
+    work: impl Fn(&T) -> Result<R, E> + Sync,
+    mut write: impl FnMut(R) -> Result<(), E>,
+    progress: &dyn Progress,
+) -> Result<(), E>
+where
+    T: Sync,
+    R: Send,
+    E: Send,
+{
+    let failed = AtomicBool::new(false);
+    let (sender, receiver) = mpsc::channel::<(usize, Result<R, E>)>();
+    std::thread::scope(|scope| {
+        let failed = &failed;
+        let work = &work;
+        scope.spawn(move || {
+            items.par_iter().enumerate().for_each_with(sender, |sender, (index, item)| {
+                if !failed.load(Ordering::Relaxed) {
+                    // The receiver outlives the workers unless it stopped on an error.
+                    let _ = sender.send((index, work(item)));
+                }
+            });
+        });
+        let mut pending = BTreeMap::new();
+        let mut next = 0;
+        for (index, result) in receiver {
+            pending.insert(index, result);
+            while let Some(result) = pending.remove(&next) {
+                next += 1;
+                if let Err(err) = result.and_then(&mut write) {
+                    failed.store(true, Ordering::Relaxed);
+                    return Err(err);
+                }
+                progress.advance();
+            }
+        }
+        Ok(())
+    })
+}
+
+/// Decodes an image to grey, downscaled so its larger side is at most
+/// `max_image_size_px`; returns it with the factor back to full resolution.
+fn load_grey(path: &std::path::Path, max_image_size_px: u32) -> Result<(image::GrayImage, f32), PipelineError> {
+    let bad = |e: image::ImageError| PipelineError::BadImage { path: path.to_path_buf(), reason: e.to_string() };
+    let grey = image::ImageReader::open(path)
+        .map_err(|source| PipelineError::Io { path: path.to_path_buf(), source })?
+        .with_guessed_format()
+        .map_err(|source| PipelineError::Io { path: path.to_path_buf(), source })?
+        .decode()
+        .map_err(bad)?
+        .to_luma8();
+    let longest = grey.width().max(grey.height());
+    if longest <= max_image_size_px {
+        return Ok((grey, 1.0));
+    }
+    let factor = longest as f32 / max_image_size_px as f32;
+    let width = ((grey.width() as f32 / factor).round() as u32).max(1);
+    let height = ((grey.height() as f32 / factor).round() as u32).max(1);
+    let small = image::imageops::resize(&grey, width, height, image::imageops::FilterType::Triangle);
+    Ok((small, grey.width() as f32 / width as f32))
+}
+
+/// Feature extraction for every image of `sessions` whose features are not in
+/// the store yet. `image_ids` maps COLMAP names to store ids.
+pub fn extract_features(
+    store: &mut Store,
+    sessions: &[SessionImages],
+    image_ids: &BTreeMap<String, ImageId>,
+    sift: &SiftOptions,
+    max_image_size_px: u32,
+    progress: &dyn Progress,
+) -> Result<StageCounts, PipelineError> {
+    let finished = store.images_with_features()?;
+    let mut todo = Vec::new();
+    let mut total = 0;
+    for session in sessions {
+        for file in &session.files {
+            total += 1;
+            let name = revisit_core::image_name(&session.name, file);
+            if let Some(&id) = image_ids.get(&name) {
+                if !finished.contains(&id) {
+                    todo.push((id, session.dir.join(file)));
+                }
+            }
+        }
+    }
+    let counts = StageCounts { done: todo.len(), reused: total - todo.len() };
+    tracing::info!(new = counts.done, reused = counts.reused, "features");
+    progress.start("features", todo.len() as u64);
+    parallel_in_order(
+        &todo,
+        |(id, path)| {
+            let (grey, factor) = load_grey(path, max_image_size_px)?;
+            let mut features = revisit_features::extract_sift(sift, &grey)
+                .map_err(|e| PipelineError::Features { path: path.clone(), reason: e.to_string() })?;
+            if factor != 1.0 {
+                for kp in &mut features.keypoints {
+                    kp.x *= factor;
+                    kp.y *= factor;
+                    kp.scale *= factor;
+                }
+            }
+            Ok((*id, features))
+        },
+        |(id, features)| store.write_features(id, &features).map_err(PipelineError::from),
+        progress,
+    )?;
+    progress.finish();
+    Ok(counts)
+}
+
+/// Which images of other sessions each image is matched with.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, serde::Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum CrossStrategy {
+    /// Intra-session pairs only.
+    None,
+    /// Every cross-session pair, with SIFT: the classic joint baseline.
+    #[default]
+    Sift,
+}
+
+/// An image pair to match, and whether it crosses sessions.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, PartialOrd, Ord)]
+pub struct PlannedPair {
+    pub image_id1: ImageId,
+    pub image_id2: ImageId,
+    pub cross: bool,
+}
+
+/// Plans the pairs to match: intra-session pairs by `pair_options`, cross-session
+/// pairs by `cross`. Sorted by (image 1, image 2).
+pub fn plan_pairs(
+    sessions: &[SessionImages],
+    image_ids: &BTreeMap<String, ImageId>,
+    cross: CrossStrategy,
+    pair_options: &PairOptions,
+) -> Vec<PlannedPair> {
+    let ids: Vec<Vec<ImageId>> = sessions
+        .iter()
+        .map(|s| s.image_names().iter().filter_map(|n| image_ids.get(n).copied()).collect())
+        .collect();
+    let mut pairs = Vec::new();
+    for session in &ids {
+        for (i, j) in intra_session_pairs(session.len(), pair_options) {
+            if let (Some(&a), Some(&b)) = (session.get(i), session.get(j)) {
+                pairs.push(PlannedPair { image_id1: a, image_id2: b, cross: false });
+            }
+        }
+    }
+    if cross == CrossStrategy::Sift {
+        for (s, first) in ids.iter().enumerate() {
+            for second in &ids[s + 1..] {
+                for &a in first {
+                    for &b in second {
+                        pairs.push(PlannedPair { image_id1: a, image_id2: b, cross: true });
+                    }
+                }
+            }
+        }
+    }
+    pairs.sort_unstable();
+    pairs.dedup();
+    pairs
+}
+
+/// Reads the features of `image_ids` from the store.
+pub fn load_features(
+    store: &Store,
+    image_ids: impl IntoIterator<Item = ImageId>,
+) -> Result<HashMap<ImageId, Features>, PipelineError> {
+    image_ids.into_iter().map(|id| Ok((id, store.read_features(id)?))).collect()
+}
+
+/// Matches and verifies every planned pair not yet in the store.
+pub fn match_pairs(
+    store: &mut Store,
+    pairs: &[PlannedPair],
+    features: &HashMap<ImageId, Features>,
+    match_options: &MatchOptions,
+    verify_options: &VerifyOptions,
+    progress: &dyn Progress,
+) -> Result<StageCounts, PipelineError> {
+    let finished = store.matched_pairs()?;
+    let todo: Vec<PlannedPair> =
+        pairs.iter().filter(|p| !finished.contains(&pair_id(p.image_id1, p.image_id2))).copied().collect();
+    let counts = StageCounts { done: todo.len(), reused: pairs.len() - todo.len() };
+    tracing::info!(new = counts.done, reused = counts.reused, "matching");
+    progress.start("matching", todo.len() as u64);
+    let empty = Features::default();
+    parallel_in_order(
+        &todo,
+        |pair| -> Result<_, PipelineError> {
+            let a = features.get(&pair.image_id1).unwrap_or(&empty);
+            let b = features.get(&pair.image_id2).unwrap_or(&empty);
+            let matches = match_descriptors(a, b, match_options);
+            let geometry = verify(&a.keypoints, &b.keypoints, &matches, verify_options);
+            let record = PairRecord {
+                image_id1: pair.image_id1,
+                image_id2: pair.image_id2,
+                kind: if pair.cross { "cross" } else { "intra" }.to_owned(),
+                method: "sift".to_owned(),
+                roll_deg: 0,
+                num_matches: matches.len(),
+                num_inliers: geometry.inlier_matches.len(),
+            };
+            Ok((record, matches, geometry))
+        },
+        |(record, matches, geometry)| store.write_pair(&record, &matches, &geometry).map_err(PipelineError::from),
+        progress,
+    )?;
+    progress.finish();
+    Ok(counts)
+}

@@ -1,0 +1,64 @@
+//! Shared helpers of the end-to-end tests: the `revisit` binary, the
+//! project's Python environment and the shared data, as a user has them.
+#![allow(dead_code)]
+
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output};
+
+pub fn repo() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("../..").canonicalize().expect("repository root")
+}
+
+/// `../shared/data/<rel>` beside the checkout.
+pub fn shared_data(rel: &str) -> PathBuf {
+    let path = repo().join("../shared/data").join(rel);
+    assert!(path.exists(), "{} is missing: the tests need ../shared beside the checkout", path.display());
+    path
+}
+
+/// The project's Python (made by scripts/setup.sh); a missing one fails the test.
+pub fn python() -> PathBuf {
+    let python = repo().join(".venv/bin/python");
+    assert!(python.is_file(), "{} is missing: run scripts/setup.sh", python.display());
+    python
+}
+
+/// The `revisit` binary with the project's Python.
+pub fn revisit() -> Command {
+    let mut command = Command::new(env!("CARGO_BIN_EXE_revisit"));
+    command.env("REVISIT_PYTHON", python()).env("RUST_LOG", "warn");
+    command
+}
+
+/// Runs `revisit` and returns its output, failing the test with stderr if it failed.
+pub fn run_ok(args: &[&str]) -> Output {
+    let output = revisit().args(args).output().expect("start revisit");
+    assert!(
+        output.status.success(),
+        "revisit {args:?} failed:\n{}",
+        String::from_utf8_lossy(&output.stderr)
+    );
+    output
+}
+
+/// Runs `revisit`, expects it to fail, and returns its stderr.
+pub fn run_err(args: &[&str]) -> String {
+    let output = revisit().args(args).output().expect("start revisit");
+    assert!(!output.status.success(), "revisit {args:?} should have failed");
+    String::from_utf8_lossy(&output.stderr).into_owned()
+}
+
+pub fn read_json(path: &Path) -> serde_json::Value {
+    let text = std::fs::read_to_string(path).unwrap_or_else(|e| panic!("{}: {e}", path.display()));
+    serde_json::from_str(&text).expect("valid JSON")
+}
+
+/// Copies the first `n` images (sorted) of a folder into a new folder.
+pub fn copy_first(from: &Path, n: usize, to: &Path) {
+    std::fs::create_dir_all(to).unwrap();
+    let mut names: Vec<_> = std::fs::read_dir(from).unwrap().map(|e| e.unwrap().file_name()).collect();
+    names.sort();
+    for name in names.into_iter().take(n) {
+        std::fs::copy(from.join(&name), to.join(&name)).unwrap();
+    }
+}
