@@ -125,7 +125,7 @@ mod tests {
             let p = Point3::new(rand() * 4.0 - 2.0, rand() * 3.0 - 1.5, 4.0 + rand() * 3.0);
             let a = camera.img_from_cam(&p).unwrap();
             let mut b = camera.img_from_cam(&(cam2_from_cam1 * p)).unwrap();
-            if i as usize % outlier_every == 0 {
+            if (i as usize).is_multiple_of(outlier_every) {
                 b = nalgebra::Point2::new(rand() * 640.0, rand() * 480.0);
                 outliers += 1;
             }

@@ -18,7 +18,7 @@ pub fn matrix_row_major(m: &nalgebra::Matrix3<f64>) -> Vec<u8> {
 }
 
 fn decode<const N: usize, T>(bytes: &[u8], from: impl Fn([u8; N]) -> T) -> Option<Vec<T>> {
-    if bytes.len() % N != 0 {
+    if !bytes.len().is_multiple_of(N) {
         return None;
     }
     bytes.chunks_exact(N).map(|c| c.try_into().ok().map(&from)).collect()

@@ -69,6 +69,7 @@ pub(crate) fn orientations(
     let (width, height) = (gaussian.width as isize, gaussian.height as isize);
     let (c, r) = (column as isize, row as isize);
     let mut hist = [0.0_f32; ORIENTATION_BINS];
+    let (mut values, mut bins) = (Vec::new(), Vec::new());
     let bins_per_radian = ORIENTATION_BINS as f32 / TAU;
     let x_start = (c - radius).max(1);
     let x_end = (c + radius).min(width - 2);
@@ -89,16 +90,24 @@ pub(crate) fn orientations(
             continue;
         };
         let weights_x = weights.get((x_start - (c - radius)) as usize..).unwrap_or(&[]);
-        for ((([left, _, right], &up), &down), &weight_x) in
-            middle.array_windows::<3>().zip(above).zip(below).zip(weights_x)
+        // Vectorisable pass, then the scatter into the histogram.
+        let count = x1 - x0 + 1;
+        values.resize(count, 0.0);
+        bins.resize(count, 0.0);
+        let samples = middle.array_windows::<3>().zip(above).zip(below).zip(weights_x);
+        for (((([left, _, right], &up), &down), &weight_x), (value, bin)) in
+            samples.zip(values.iter_mut().zip(bins.iter_mut()))
         {
             let (dx, dy) = (right - left, down - up);
-            let magnitude = (dx * dx + dy * dy).sqrt();
+            *value = (dx * dx + dy * dy).sqrt() * weight_x * weight_y;
             // Nearest bin (the angle is >= 0, so truncation after + 0.5 rounds).
-            let bin = (fast_atan2(dy, dx) * bins_per_radian + 0.5) as usize;
+            *bin = fast_atan2(dy, dx) * bins_per_radian + 0.5;
+        }
+        for (&value, &bin) in values.iter().zip(bins.iter()) {
+            let bin = bin as usize;
             let bin = if bin >= ORIENTATION_BINS { bin - ORIENTATION_BINS } else { bin };
             if let Some(h) = hist.get_mut(bin) {
-                *h += weight_x * weight_y * magnitude;
+                *h += value;
             }
         }
     }
