@@ -23,7 +23,7 @@ fn subvo_pool_registers_and_matches_ground_truth() {
     let images = shared_data("subvo/images");
     let session = format!("pool={}", images.display());
     let out = work.path().to_str().unwrap();
-    run_ok(&["reconstruct", "--session", &session, "--out", out, "--ignore-region", "0,0,200,30"]);
+    run_ok(&["reconstruct", "--session", &session, "--out", out, "--ignore-region", "0,0,200,30", "--max-features", "2048"]);
 
     let report = read_json(&work.path().join("report.json"));
     let registered = report["sessions"]["pool"]["registered"].as_u64().unwrap();

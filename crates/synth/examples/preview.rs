@@ -14,14 +14,25 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     let survey = revisit_synth::plan(&options)?;
     println!("plan {:.2}s site {:.1} m", t.elapsed().as_secs_f64(), survey.site_size_m());
     for s in survey.sessions() {
-        println!("{} alt {:.2} heading {:.1} lines {} n {}", s.name, s.altitude_m, s.heading_deg, s.lines, s.images.len());
+        println!(
+            "{} alt {:.2} heading {:.1} lines {} n {}",
+            s.name,
+            s.altitude_m,
+            s.heading_deg,
+            s.lines,
+            s.images.len()
+        );
     }
     let t = Instant::now();
     for s in 0..survey.sessions().len() {
         survey.prepare(s)?;
     }
     println!("prepare {:.2}s", t.elapsed().as_secs_f64());
-    let picks: Vec<usize> = if args.len() > 5 { args[5..].iter().filter_map(|s| s.parse().ok()).collect() } else { vec![0, 25, 60, 85, 120, 145] };
+    let picks: Vec<usize> = if args.len() > 5 {
+        args[5..].iter().filter_map(|s| s.parse().ok()).collect()
+    } else {
+        vec![0, 25, 60, 85, 120, 145]
+    };
     let t = Instant::now();
     for &i in &picks {
         let r = survey.render(i)?;

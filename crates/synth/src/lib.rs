@@ -132,7 +132,9 @@ pub enum SynthError {
     TooManySessions(usize),
     #[error("images per session must be at least 2, got {0}")]
     TooFewImages(usize),
-    #[error("image size {width}x{height} is out of range: at least {MIN_WIDTH}x{MIN_HEIGHT}, at most {MAX_SIDE} per side")]
+    #[error(
+        "image size {width}x{height} is out of range: at least {MIN_WIDTH}x{MIN_HEIGHT}, at most {MAX_SIDE} per side"
+    )]
     BadImageSize { width: u32, height: u32 },
     #[error("unknown change grade {0:?}: expected none, mild, strong or storm")]
     UnknownChange(String),

@@ -245,11 +245,12 @@ mod tests {
 
     #[test]
     fn rng_is_deterministic() {
-        let a: Vec<u64> = (0..4).map({
-            let mut g = SplitMix64::new(3);
-            move |_| g.next_u64()
-        })
-        .collect();
+        let a: Vec<u64> = (0..4)
+            .map({
+                let mut g = SplitMix64::new(3);
+                move |_| g.next_u64()
+            })
+            .collect();
         let mut g = SplitMix64::new(3);
         assert_eq!(a, (0..4).map(|_| g.next_u64()).collect::<Vec<_>>());
     }

@@ -209,8 +209,15 @@ pub(crate) fn rasterize(site: &Site, scene: &SessionScene, view: &View, stride: 
     let vertex = |r: usize, c: usize| screen.get(r * cols + c).copied();
     for r in 0..rows - 1 {
         for c in 0..cols - 1 {
-            let ids = [(r * cols + c) as u32, (r * cols + c + 1) as u32, ((r + 1) * cols + c + 1) as u32, ((r + 1) * cols + c) as u32];
-            let (Some(a), Some(b), Some(cc), Some(d)) = (vertex(r, c), vertex(r, c + 1), vertex(r + 1, c + 1), vertex(r + 1, c)) else {
+            let ids = [
+                (r * cols + c) as u32,
+                (r * cols + c + 1) as u32,
+                ((r + 1) * cols + c + 1) as u32,
+                ((r + 1) * cols + c) as u32,
+            ];
+            let (Some(a), Some(b), Some(cc), Some(d)) =
+                (vertex(r, c), vertex(r, c + 1), vertex(r + 1, c + 1), vertex(r + 1, c))
+            else {
                 continue;
             };
             for (tri, verts) in [([ids[0], ids[1], ids[2]], [a, b, cc]), ([ids[0], ids[2], ids[3]], [a, cc, d])] {
@@ -261,7 +268,15 @@ fn edge(a: ScreenVertex, b: ScreenVertex, px: f32, py: f32) -> f32 {
     (b.x - a.x) * (py - a.y) - (b.y - a.y) * (px - a.x)
 }
 
-fn raster_triangle(a: ScreenVertex, b: ScreenVertex, c: ScreenVertex, row0: usize, band_rows: usize, w: usize, out: &mut [f32]) {
+fn raster_triangle(
+    a: ScreenVertex,
+    b: ScreenVertex,
+    c: ScreenVertex,
+    row0: usize,
+    band_rows: usize,
+    w: usize,
+    out: &mut [f32],
+) {
     let area = edge(a, b, c.x, c.y);
     if area.abs() < 1e-9 {
         return;
@@ -339,7 +354,15 @@ fn caustic(x: f32, y: f32, time_s: f32, scale_m: f32) -> f32 {
 
 /// Shades a depth buffer into a linear-light RGB buffer (3 floats per pixel).
 #[allow(clippy::too_many_arguments)]
-fn shade(site: &Site, scene: &SessionScene, view: &View, look: &Appearance, time_s: f64, depth: &[f32], parallel: bool) -> Vec<f32> {
+fn shade(
+    site: &Site,
+    scene: &SessionScene,
+    view: &View,
+    look: &Appearance,
+    time_s: f64,
+    depth: &[f32],
+    parallel: bool,
+) -> Vec<f32> {
     let w = view.width;
     let mut rgb = vec![0.0f32; depth.len() * 3];
     let world_from_cam = view.cam_from_world.inverse();
@@ -368,9 +391,10 @@ fn shade(site: &Site, scene: &SessionScene, view: &View, look: &Appearance, time
             let (n, occlusion, sunlit) = surface_at(site, scene, p.x, p.y);
             let lambert = (n[0] * l[0] + n[1] * l[1] + n[2] * l[2]).max(0.0);
             let (xf, yf) = (p.x as f32, p.y as f32);
-            let caustics = if look.caustics > 0.0 { look.caustics * caustic(xf, yf, time, look.caustic_scale_m) } else { 0.0 };
-            let irradiance =
-                look.light_level * (look.ambient * occlusion + (1.0 - look.ambient) * lambert * sunlit * (1.0 + caustics));
+            let caustics =
+                if look.caustics > 0.0 { look.caustics * caustic(xf, yf, time, look.caustic_scale_m) } else { 0.0 };
+            let irradiance = look.light_level
+                * (look.ambient * occlusion + (1.0 - look.ambient) * lambert * sunlit * (1.0 + caustics));
             let build_up = 1.0 - (-look.backscatter_per_m * range).exp();
             for k in 0..3 {
                 let signal = albedo[k] * look.light_rgb[k] * irradiance * (-look.attenuation_per_m[k] * range).exp();
@@ -461,7 +485,10 @@ fn finish(rgb: &[f32], w: usize, h: usize, look: &Appearance, noise_seed: u64) -
             let mut level = toned.powf(1.0 / 2.0) * 255.0;
             if look.noise_sigma > 0.0 {
                 let hsh = noise::hash2(i as i32, k as i32, seed);
-                let g = noise::unit(hsh) + noise::unit(hsh.rotate_left(11) ^ 0x9E37_79B9) + noise::unit(noise::hash2(k as i32, i as i32, seed ^ 0x55)) - 1.5;
+                let g = noise::unit(hsh)
+                    + noise::unit(hsh.rotate_left(11) ^ 0x9E37_79B9)
+                    + noise::unit(noise::hash2(k as i32, i as i32, seed ^ 0x55))
+                    - 1.5;
                 level += 2.0 * g * look.noise_sigma;
             }
             *o = (level + 0.5).clamp(0.0, 255.0) as u8;

@@ -583,7 +583,8 @@ pub(crate) fn evolve(
     for object in previous {
         let mut o = object.clone();
         let coral = o.kind.is_coral();
-        let move_p = if coral { rates.move_p } else { rates.rock_move_p * if o.kind == ObjectKind::Pebble { 3.0 } else { 1.0 } };
+        let move_p =
+            if coral { rates.move_p } else { rates.rock_move_p * if o.kind == ObjectKind::Pebble { 3.0 } else { 1.0 } };
         if coral && rng.chance(rates.loss_p) {
             continue;
         }
@@ -605,15 +606,14 @@ pub(crate) fn evolve(
     }
     let area = (2.0 * spread) * (2.0 * spread);
     let recruits = (rates.recruits_per_m2 * area).round() as usize;
-    let mut next_id = previous.iter().map(|o| o.id).max().unwrap_or(0) + 1;
-    for _ in 0..recruits {
+    let first_id = previous.iter().map(|o| o.id).max().unwrap_or(0) + 1;
+    for next_id in (first_id..).take(recruits) {
         let kind = if rng.chance(0.5) { ObjectKind::CoralHead } else { ObjectKind::BranchingCoral };
         let mut o = new_object(&mut rng, site, next_id, kind, spread);
         o.radius_m = rng.range(0.06, 0.14);
         o.height_m = o.radius_m * 0.5;
         settle(&mut o, site);
         next.push(o);
-        next_id += 1;
     }
     next
 }
@@ -626,8 +626,7 @@ pub(crate) struct MipChain {
 impl MipChain {
     pub fn new(size: usize, level0: Vec<[u8; 3]>, parallel: bool) -> Self {
         let mut levels = vec![(size, level0)];
-        loop {
-            let Some((n, data)) = levels.last() else { break };
+        while let Some((n, data)) = levels.last() {
             let n = *n;
             if n <= 1 {
                 break;
@@ -640,8 +639,12 @@ impl MipChain {
             let mut next = vec![[0u8; 3]; m * m];
             let row = |j: usize, row: &mut [[u8; 3]]| {
                 for (i, texel) in row.iter_mut().enumerate() {
-                    let (a, b, c, d) =
-                        (fetch(2 * i, 2 * j), fetch(2 * i + 1, 2 * j), fetch(2 * i, 2 * j + 1), fetch(2 * i + 1, 2 * j + 1));
+                    let (a, b, c, d) = (
+                        fetch(2 * i, 2 * j),
+                        fetch(2 * i + 1, 2 * j),
+                        fetch(2 * i, 2 * j + 1),
+                        fetch(2 * i + 1, 2 * j + 1),
+                    );
                     for k in 0..3 {
                         texel[k] = ((a[k] + b[k] + c[k] + d[k] + 2) / 4) as u8;
                     }

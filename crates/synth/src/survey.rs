@@ -122,7 +122,8 @@ fn choose_lines(images: usize, region_m: f64, footprint_w: f64, footprint_h: f64
         }
         let side = if lines > 1 { 1.0 - region_m / (lines - 1) as f64 / footprint_w } else { 0.0 };
         let along = 1.0 - region_m / (per_line - 1) as f64 / footprint_h;
-        let score = if lines > 1 { (side / SIDE_OVERLAP).min(along / ALONG_OVERLAP) } else { along / ALONG_OVERLAP - 1.0 };
+        let score =
+            if lines > 1 { (side / SIDE_OVERLAP).min(along / ALONG_OVERLAP) } else { along / ALONG_OVERLAP - 1.0 };
         if score > best.0 {
             best = (score, lines);
         }
@@ -134,13 +135,20 @@ fn appearance(grade: ChangeGrade, rng: &mut SplitMix64) -> Appearance {
     let mut look = Appearance::nominal();
     let (level, elevation, azimuth_spread, attenuation, backscatter, green, caustics, blur, noise) = match grade {
         ChangeGrade::None => return look,
-        ChangeGrade::Mild => ((0.85, 1.15), (55.0, 80.0), 40.0, (0.85, 1.2), (0.8, 1.3), 0.3, (0.1, 0.3), (0.0, 0.5), (1.0, 2.5)),
-        ChangeGrade::Strong => ((0.65, 1.25), (45.0, 85.0), 180.0, (0.7, 1.7), (0.8, 2.0), 0.7, (0.2, 0.6), (0.3, 1.0), (2.0, 4.0)),
-        ChangeGrade::Storm => ((0.6, 0.95), (45.0, 85.0), 180.0, (1.3, 2.2), (1.8, 3.0), 0.8, (0.0, 0.3), (0.5, 1.2), (2.0, 4.0)),
+        ChangeGrade::Mild => {
+            ((0.85, 1.15), (55.0, 80.0), 40.0, (0.85, 1.2), (0.8, 1.3), 0.3, (0.1, 0.3), (0.0, 0.5), (1.0, 2.5))
+        }
+        ChangeGrade::Strong => {
+            ((0.65, 1.25), (45.0, 85.0), 180.0, (0.7, 1.7), (0.8, 2.0), 0.7, (0.2, 0.6), (0.3, 1.0), (2.0, 4.0))
+        }
+        ChangeGrade::Storm => {
+            ((0.6, 0.95), (45.0, 85.0), 180.0, (1.3, 2.2), (1.8, 3.0), 0.8, (0.0, 0.3), (0.5, 1.2), (2.0, 4.0))
+        }
     };
     let base_azimuth = 30.0;
     look.light_level = rng.range(level.0, level.1) as f32;
-    look.light_dir = sun_dir(rng.range(elevation.0, elevation.1), base_azimuth + rng.range(-azimuth_spread, azimuth_spread));
+    look.light_dir =
+        sun_dir(rng.range(elevation.0, elevation.1), base_azimuth + rng.range(-azimuth_spread, azimuth_spread));
     let a = rng.range(attenuation.0, attenuation.1) as f32;
     let red_shift = rng.range(0.9, 1.2) as f32;
     look.attenuation_per_m = [
@@ -211,7 +219,10 @@ pub fn plan(options: &SynthOptions) -> Result<Survey, SynthError> {
         .map(|t| {
             let (fw, fh) = footprint(t.altitude_m + 0.3);
             let diag = 0.5 * (fw * fw + fh * fh).sqrt();
-            0.5 * region_m * std::f64::consts::SQRT_2 + t.offset_m[0].abs().max(t.offset_m[1].abs()) + diag + t.altitude_m * tilt_margin
+            0.5 * region_m * std::f64::consts::SQRT_2
+                + t.offset_m[0].abs().max(t.offset_m[1].abs())
+                + diag
+                + t.altitude_m * tilt_margin
         })
         .fold(0.0, f64::max)
         + 0.3;
@@ -222,8 +233,14 @@ pub fn plan(options: &SynthOptions) -> Result<Survey, SynthError> {
     for (s, track) in tracks.iter().enumerate() {
         let name = format!("s{}", s + 1);
         let camera_id = (s + 1) as CameraId;
-        let camera = Camera::new(camera_id, CameraModel::Pinhole, options.width, options.height, vec![focal_px, focal_px, w / 2.0, h / 2.0])
-            .map_err(|source| SynthError::Camera { session: name.clone(), source })?;
+        let camera = Camera::new(
+            camera_id,
+            CameraModel::Pinhole,
+            options.width,
+            options.height,
+            vec![focal_px, focal_px, w / 2.0, h / 2.0],
+        )
+        .map_err(|source| SynthError::Camera { session: name.clone(), source })?;
         let mut srng = SplitMix64::stream(options.seed, 0x1000 + s as u64);
         let look = appearance(options.change, &mut srng);
         let (fw, fh) = footprint(track.altitude_m);
@@ -349,7 +366,9 @@ impl Survey {
         if id == scene::SEABED_ID {
             return true;
         }
-        let find = |s: usize| self.objects.get(s).and_then(|objs| objs.binary_search_by_key(&id, |o| o.id).ok().and_then(|k| objs.get(k)));
+        let find = |s: usize| {
+            self.objects.get(s).and_then(|objs| objs.binary_search_by_key(&id, |o| o.id).ok().and_then(|k| objs.get(k)))
+        };
         matches!((find(a), find(b)), (Some(x), Some(y)) if x == y)
     }
 
@@ -398,7 +417,13 @@ impl Survey {
 
     /// Renders session `session`'s reef and water from any pose with its
     /// camera; `time_s` drives the caustics, `noise_seed` the sensor noise.
-    pub fn render_pose(&self, session: usize, cam_from_world: &Rigid3, time_s: f64, noise_seed: u64) -> Result<Rendered, SynthError> {
+    pub fn render_pose(
+        &self,
+        session: usize,
+        cam_from_world: &Rigid3,
+        time_s: f64,
+        noise_seed: u64,
+    ) -> Result<Rendered, SynthError> {
         let scene = self.scene(session)?;
         let view = self.view(session, cam_from_world)?;
         let look = &self.session(session)?.appearance;
@@ -407,7 +432,11 @@ impl Survey {
 
     /// Depth (camera z, metres) and object ids of image `index` without shading,
     /// at `1 / downscale` of the image size (intrinsics scaled alike).
-    pub fn render_geometry(&self, index: usize, downscale: usize) -> Result<(Vec<f32>, Vec<u32>, usize, usize), SynthError> {
+    pub fn render_geometry(
+        &self,
+        index: usize,
+        downscale: usize,
+    ) -> Result<(Vec<f32>, Vec<u32>, usize, usize), SynthError> {
         let image = self.image(index)?;
         let scene = self.scene(image.session)?;
         let view = self.view(image.session, &image.cam_from_world)?.scaled(downscale);
@@ -470,4 +499,3 @@ impl Survey {
             .collect()
     }
 }
-

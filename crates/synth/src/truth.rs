@@ -122,7 +122,8 @@ impl Survey {
         let results: Vec<Option<Overlap>> = pairs
             .par_iter()
             .map(|&(i, j)| {
-                let (Some(a), Some(b), Ok(ia), Ok(ib)) = (coarse.get(i), coarse.get(j), self.image(i), self.image(j)) else {
+                let (Some(a), Some(b), Ok(ia), Ok(ib)) = (coarse.get(i), coarse.get(j), self.image(i), self.image(j))
+                else {
                     return Ok(None);
                 };
                 let view = self.view(b.session, &ib.cam_from_world)?.scaled(downscale);
@@ -202,20 +203,27 @@ impl Survey {
                 }
             }
         }
-        let found: Vec<Option<EvaluationPair>> = chosen
-            .par_iter()
-            .map(|&(i, j)| self.pick_points(i, j, options))
-            .collect::<Result<_, SynthError>>()?;
+        let found: Vec<Option<EvaluationPair>> =
+            chosen.par_iter().map(|&(i, j)| self.pick_points(i, j, options)).collect::<Result<_, SynthError>>()?;
         Ok(found.into_iter().flatten().take(options.pairs).collect())
     }
 
-    fn pick_points(&self, i: usize, j: usize, options: &EvaluationOptions) -> Result<Option<EvaluationPair>, SynthError> {
+    fn pick_points(
+        &self,
+        i: usize,
+        j: usize,
+        options: &EvaluationOptions,
+    ) -> Result<Option<EvaluationPair>, SynthError> {
         let (im0, im1) = (self.image(i)?, self.image(j)?);
         let r0 = self.render(i)?;
         let (depth1, ids1, w1, h1) = self.render_geometry(j, 1)?;
         let view1 = self.view(im1.session, &im1.cam_from_world)?;
         let (w, h) = (r0.rgb.width() as usize, r0.rgb.height() as usize);
-        let gray: Vec<f32> = r0.rgb.pixels().map(|p| 0.299 * f32::from(p[0]) + 0.587 * f32::from(p[1]) + 0.114 * f32::from(p[2])).collect();
+        let gray: Vec<f32> = r0
+            .rgb
+            .pixels()
+            .map(|p| 0.299 * f32::from(p[0]) + 0.587 * f32::from(p[1]) + 0.114 * f32::from(p[2]))
+            .collect();
         let g = |x: usize, y: usize| gray.get(y * w + x).copied().unwrap_or(0.0);
         let border = options.border_px.max(6.0) as usize;
         if w <= 2 * border || h <= 2 * border {
@@ -227,7 +235,9 @@ impl Survey {
             for yy in y - 2..=y + 2 {
                 for xx in x - 2..=x + 2 {
                     let k = yy * width + xx;
-                    if ids.get(k) != Some(&id) || !depth_agrees(f64::from(d0), depth.get(k).copied().unwrap_or(f32::INFINITY), 0.015, 0.004) {
+                    if ids.get(k) != Some(&id)
+                        || !depth_agrees(f64::from(d0), depth.get(k).copied().unwrap_or(f32::INFINITY), 0.015, 0.004)
+                    {
                         return false;
                     }
                 }

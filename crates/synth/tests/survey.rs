@@ -10,11 +10,13 @@ fn small(change: ChangeGrade, sessions: usize, seed: u64) -> SynthOptions {
     SynthOptions { sessions, images_per_session: 6, seed, change, width: 160, height: 120 }
 }
 
+#[allow(clippy::unwrap_used)] // test fixture
 fn mild() -> &'static Survey {
     static SURVEY: OnceLock<Survey> = OnceLock::new();
     SURVEY.get_or_init(|| plan(&small(ChangeGrade::Mild, 2, 7)).unwrap())
 }
 
+#[allow(clippy::unwrap_used)] // test fixture
 fn none() -> &'static Survey {
     static SURVEY: OnceLock<Survey> = OnceLock::new();
     SURVEY.get_or_init(|| plan(&small(ChangeGrade::None, 2, 3)).unwrap())
@@ -41,7 +43,8 @@ fn renders_look_like_a_textured_seabed() {
     assert!(mean > 60.0 && mean < 220.0, "mean {mean}");
     assert!(var.sqrt() > 8.0, "contrast {}", var.sqrt());
     // Blue-green water: red is the weakest channel on average.
-    let (red, green): (f64, f64) = r.rgb.pixels().fold((0.0, 0.0), |acc, p| (acc.0 + f64::from(p[0]), acc.1 + f64::from(p[1])));
+    let (red, green): (f64, f64) =
+        r.rgb.pixels().fold((0.0, 0.0), |acc, p| (acc.0 + f64::from(p[0]), acc.1 + f64::from(p[1])));
     assert!(red < green);
 }
 
@@ -63,7 +66,8 @@ fn truth_poses_project_rendered_points_onto_the_same_surface_in_other_images() {
         for row in (4..120).step_by(9) {
             for col in (4..160).step_by(9) {
                 let z = ri.depth_m[row * 160 + col];
-                let world = survey.world_point(i, Point2::new(col as f64 + 0.5, row as f64 + 0.5), f64::from(z)).unwrap();
+                let world =
+                    survey.world_point(i, Point2::new(col as f64 + 0.5, row as f64 + 0.5), f64::from(z)).unwrap();
                 let Some(uv) = model.project(image_j, &world) else { continue };
                 if uv.x < 0.0 || uv.y < 0.0 || uv.x >= 160.0 || uv.y >= 120.0 {
                     continue;
@@ -114,10 +118,8 @@ fn storm_moves_or_removes_a_large_share_of_corals() {
     let before = survey.objects(0).unwrap();
     let after = survey.objects(1).unwrap();
     let corals: Vec<_> = before.iter().filter(|o| o.kind.is_coral()).collect();
-    let moved_or_gone = corals
-        .iter()
-        .filter(|o| after.iter().find(|p| p.id == o.id).is_none_or(|p| p.centre_m != o.centre_m))
-        .count();
+    let moved_or_gone =
+        corals.iter().filter(|o| after.iter().find(|p| p.id == o.id).is_none_or(|p| p.centre_m != o.centre_m)).count();
     let share = moved_or_gone as f64 / corals.len() as f64;
     assert!((0.3..=0.55).contains(&share), "moved or removed {share}");
 }

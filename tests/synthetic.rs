@@ -1,0 +1,58 @@
+//! The synthetic reef end to end: render three visits with no change, reconstruct
+//! them jointly, score the result against the exact truth.
+
+mod common;
+
+use common::{read_json, run_ok};
+
+#[test]
+fn unchanged_reef_reconstructs_to_subpixel_cross_visit_error() {
+    let dir = tempfile::tempdir().unwrap();
+    let reef = dir.path().join("reef");
+    let work = dir.path().join("work");
+    let reef_s = reef.to_str().unwrap();
+    run_ok(&["synth", "--out", reef_s, "--sessions", "3", "--images-per-session", "40", "--change", "none", "--seed", "0"]);
+
+    let mut args: Vec<String> = vec!["reconstruct".into(), "--out".into(), work.to_str().unwrap().into()];
+    let mut names: Vec<String> = std::fs::read_dir(reef.join("sessions"))
+        .unwrap()
+        .map(|e| e.unwrap().file_name().into_string().unwrap())
+        .collect();
+    names.sort();
+    assert_eq!(names.len(), 3);
+    for name in &names {
+        args.push("--session".into());
+        args.push(format!("{name}={}", reef.join("sessions").join(name).display()));
+    }
+    args.extend(["--max-features", "1024"].map(String::from));
+    run_ok(&args.iter().map(String::as_str).collect::<Vec<_>>());
+    let report = read_json(&work.join("report.json"));
+    assert_eq!(report["models"], 1, "{report:#}");
+    for name in &names {
+        let session = &report["sessions"][name];
+        assert_eq!(session["registered"], session["images"], "session {name}: {report:#}");
+    }
+
+    let mut points: Vec<String> = std::fs::read_dir(reef.join("truth"))
+        .unwrap()
+        .map(|e| e.unwrap().path())
+        .filter(|p| p.file_name().unwrap().to_str().unwrap().starts_with("evaluation_points_"))
+        .map(|p| p.display().to_string())
+        .collect();
+    points.sort();
+    assert_eq!(points.len(), 3, "one click file per session pair");
+    let json = work.join("eval.json");
+    let mut eval: Vec<String> = vec!["eval".into(), "--model".into(), work.join("model").display().to_string()];
+    eval.push("--points".into());
+    eval.extend(points);
+    eval.extend(["--truth".into(), reef.join("truth").display().to_string(), "--json".into(), json.display().to_string()]);
+    run_ok(&eval.iter().map(String::as_str).collect::<Vec<_>>());
+    let scores = read_json(&json);
+    println!("synthetic, change none: {scores:#}");
+    assert_eq!(scores["one_model"], true);
+    assert!(scores["scored"].as_u64().unwrap() >= 50, "too few clicks scored: {scores:#}");
+    let median_px = scores["median_px"].as_f64().unwrap();
+    assert!(median_px < 1.0, "median cross-session reprojection error {median_px} px");
+    let centre_rel = scores["truth"]["overall"]["centre_median_rel"].as_f64().unwrap();
+    assert!(centre_rel < 0.01, "camera-centre error {centre_rel} of the scene size");
+}
