@@ -1,6 +1,8 @@
 //! `revisit reconstruct` end to end: real underwater frames, bad input, and a
 //! killed run resumed.
 
+#![allow(clippy::unwrap_used, clippy::expect_used)] // test helpers outside #[test] fns
+
 mod common;
 
 use std::collections::BTreeSet;
@@ -23,7 +25,17 @@ fn subvo_pool_registers_and_matches_ground_truth() {
     let images = shared_data("subvo/images");
     let session = format!("pool={}", images.display());
     let out = work.path().to_str().unwrap();
-    run_ok(&["reconstruct", "--session", &session, "--out", out, "--ignore-region", "0,0,200,30", "--max-features", "2048"]);
+    run_ok(&[
+        "reconstruct",
+        "--session",
+        &session,
+        "--out",
+        out,
+        "--ignore-region",
+        "0,0,200,30",
+        "--max-features",
+        "2048",
+    ]);
 
     let report = read_json(&work.path().join("report.json"));
     let registered = report["sessions"]["pool"]["registered"].as_u64().unwrap();
@@ -71,10 +83,7 @@ fn subvo_pool_registers_and_matches_ground_truth() {
 }
 
 fn count_features(database: &Path) -> usize {
-    revisit_store::Store::open_read_only(database)
-        .and_then(|s| s.images_with_features())
-        .map(|s| s.len())
-        .unwrap_or(0)
+    revisit_store::Store::open_read_only(database).and_then(|s| s.images_with_features()).map(|s| s.len()).unwrap_or(0)
 }
 
 fn count_pairs(database: &Path) -> usize {

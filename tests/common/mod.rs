@@ -1,6 +1,6 @@
 //! Shared helpers of the end-to-end tests: the `revisit` binary, the
 //! project's Python environment and the shared data, as a user has them.
-#![allow(dead_code)]
+#![allow(dead_code, clippy::unwrap_used, clippy::expect_used)]
 
 use std::path::{Path, PathBuf};
 use std::process::{Command, Output};
@@ -33,11 +33,7 @@ pub fn revisit() -> Command {
 /// Runs `revisit` and returns its output, failing the test with stderr if it failed.
 pub fn run_ok(args: &[&str]) -> Output {
     let output = revisit().args(args).output().expect("start revisit");
-    assert!(
-        output.status.success(),
-        "revisit {args:?} failed:\n{}",
-        String::from_utf8_lossy(&output.stderr)
-    );
+    assert!(output.status.success(), "revisit {args:?} failed:\n{}", String::from_utf8_lossy(&output.stderr));
     output
 }
 

@@ -100,17 +100,11 @@ impl CameraModel {
     }
 
     pub fn from_id(id: i64) -> Result<Self, CameraModelError> {
-        ALL_MODELS
-            .into_iter()
-            .find(|m| i64::from(m.id()) == id)
-            .ok_or(CameraModelError::UnknownId(id))
+        ALL_MODELS.into_iter().find(|m| i64::from(m.id()) == id).ok_or(CameraModelError::UnknownId(id))
     }
 
     pub fn from_name(name: &str) -> Result<Self, CameraModelError> {
-        ALL_MODELS
-            .into_iter()
-            .find(|m| m.name() == name)
-            .ok_or_else(|| CameraModelError::UnknownName(name.to_owned()))
+        ALL_MODELS.into_iter().find(|m| m.name() == name).ok_or_else(|| CameraModelError::UnknownName(name.to_owned()))
     }
 }
 
@@ -200,8 +194,7 @@ impl Camera {
                 }
                 let theta = r.atan();
                 let t2 = theta * theta;
-                let thetad = theta
-                    * (1.0 + get(4) * t2 + get(5) * t2 * t2 + get(6) * t2.powi(3) + get(7) * t2.powi(4));
+                let thetad = theta * (1.0 + get(4) * t2 + get(5) * t2 * t2 + get(6) * t2.powi(3) + get(7) * t2.powi(4));
                 Some((u * thetad / r, v * thetad / r))
             }
             _ => None,

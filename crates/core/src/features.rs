@@ -26,9 +26,7 @@ impl Keypoint {
         match *row {
             [x, y] => Some(Self { x, y, scale: 1.0, orientation: 0.0 }),
             [x, y, scale, orientation] => Some(Self { x, y, scale, orientation }),
-            [x, y, a11, _a12, a21, _a22] => {
-                Some(Self { x, y, scale: a11.hypot(a21), orientation: a21.atan2(a11) })
-            }
+            [x, y, a11, _a12, a21, _a22] => Some(Self { x, y, scale: a11.hypot(a21), orientation: a21.atan2(a11) }),
             _ => None,
         }
     }

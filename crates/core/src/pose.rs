@@ -91,10 +91,7 @@ mod tests {
 
     #[test]
     fn composition_and_inverse_cancel() {
-        let a = Rigid3::new(
-            UnitQuaternion::from_euler_angles(0.1, -0.4, 2.0),
-            Vector3::new(1.0, 2.0, -3.0),
-        );
+        let a = Rigid3::new(UnitQuaternion::from_euler_angles(0.1, -0.4, 2.0), Vector3::new(1.0, 2.0, -3.0));
         let id = a * a.inverse();
         assert!(id.translation.norm() < 1e-12);
         assert!(id.rotation.angle() < 1e-12);
@@ -105,10 +102,8 @@ mod tests {
 
     #[test]
     fn camera_centre_maps_to_origin() {
-        let cam_from_world = Rigid3::new(
-            UnitQuaternion::from_euler_angles(0.5, 0.1, -1.0),
-            Vector3::new(0.4, -2.0, 7.0),
-        );
+        let cam_from_world =
+            Rigid3::new(UnitQuaternion::from_euler_angles(0.5, 0.1, -1.0), Vector3::new(0.4, -2.0, 7.0));
         let centre = cam_from_world.origin_of_target();
         assert!((cam_from_world * centre).coords.norm() < 1e-12);
     }

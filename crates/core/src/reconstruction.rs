@@ -90,10 +90,9 @@ mod tests {
     #[test]
     fn similarity_keeps_projections() {
         let mut model = Reconstruction::default();
-        model.cameras.insert(
-            1,
-            Camera::new(1, CameraModel::Pinhole, 640, 480, vec![500.0, 500.0, 320.0, 240.0]).unwrap(),
-        );
+        model
+            .cameras
+            .insert(1, Camera::new(1, CameraModel::Pinhole, 640, 480, vec![500.0, 500.0, 320.0, 240.0]).unwrap());
         let image = Image {
             image_id: 1,
             camera_id: 1,

@@ -75,8 +75,8 @@ fn is_image(path: &Path) -> bool {
 /// images, every header must be readable, and all images must share one size
 /// (one camera per session).
 pub fn scan_session(spec: &SessionSpec) -> Result<SessionImages, PipelineError> {
-    let dir = std::fs::canonicalize(&spec.dir)
-        .map_err(|source| PipelineError::Io { path: spec.dir.clone(), source })?;
+    let dir =
+        std::fs::canonicalize(&spec.dir).map_err(|source| PipelineError::Io { path: spec.dir.clone(), source })?;
     let entries = std::fs::read_dir(&dir).map_err(|source| PipelineError::Io { path: dir.clone(), source })?;
     let mut files = Vec::new();
     for entry in entries {

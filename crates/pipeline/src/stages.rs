@@ -161,10 +161,8 @@ pub fn plan_pairs(
     cross: CrossStrategy,
     pair_options: &PairOptions,
 ) -> Vec<PlannedPair> {
-    let ids: Vec<Vec<ImageId>> = sessions
-        .iter()
-        .map(|s| s.image_names().iter().filter_map(|n| image_ids.get(n).copied()).collect())
-        .collect();
+    let ids: Vec<Vec<ImageId>> =
+        sessions.iter().map(|s| s.image_names().iter().filter_map(|n| image_ids.get(n).copied()).collect()).collect();
     let mut pairs = Vec::new();
     for session in &ids {
         for (i, j) in intra_session_pairs(session.len(), pair_options) {

@@ -13,8 +13,7 @@ use std::collections::{BTreeMap, BTreeSet};
 use std::path::{Path, PathBuf};
 
 use revisit_core::{
-    pair_from_id, pair_id, Camera, CameraId, CameraModel, Features, ImageId, Keypoint, TwoViewConfig,
-    TwoViewGeometry,
+    pair_from_id, pair_id, Camera, CameraId, CameraModel, Features, ImageId, Keypoint, TwoViewConfig, TwoViewGeometry,
 };
 use rusqlite::{params, Connection, OptionalExtension};
 
@@ -163,11 +162,9 @@ impl Store {
     pub fn camera(&self, camera_id: CameraId) -> Result<Camera> {
         let (model, width, height, params): (i64, u32, u32, Vec<u8>) = self
             .conn
-            .query_row(
-                "SELECT model, width, height, params FROM cameras WHERE camera_id = ?1",
-                [camera_id],
-                |r| Ok((r.get(0)?, r.get(1)?, r.get(2)?, r.get(3)?)),
-            )
+            .query_row("SELECT model, width, height, params FROM cameras WHERE camera_id = ?1", [camera_id], |r| {
+                Ok((r.get(0)?, r.get(1)?, r.get(2)?, r.get(3)?))
+            })
             .map_err(|e| self.sql(e))?;
         let what = || format!("camera {camera_id}");
         let model = CameraModel::from_id(model).map_err(|e| self.corrupt(what(), e.to_string()))?;

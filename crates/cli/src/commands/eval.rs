@@ -41,6 +41,11 @@ pub struct Args {
     /// this many pixels.
     #[arg(long, default_value_t = 3.0, value_name = "R")]
     radius_px: f64,
+    /// Take the point on the clicked pixel's ray at the depth of that nearest
+    /// 3D point, so the keypoint-to-click offset does not count as error
+    /// (for exact synthetic clicks; the published rule is without it).
+    #[arg(long)]
+    at_click_depth: bool,
 }
 
 #[derive(Clone, Copy, clap::ValueEnum)]
@@ -62,7 +67,8 @@ struct Report<'a> {
 }
 
 pub fn run(args: Args) -> anyhow::Result<()> {
-    let options = ScoreOptions { radius_px: args.radius_px, ..ScoreOptions::default() };
+    let options =
+        ScoreOptions { radius_px: args.radius_px, at_click_depth: args.at_click_depth, ..ScoreOptions::default() };
     options.check().context("--radius-px")?;
 
     let mut model_paths = Vec::new();

@@ -139,7 +139,11 @@ struct MappingReport {
     mean_reprojection_error_px: Option<f64>,
 }
 
-fn timed<T>(seconds: &mut BTreeMap<&'static str, f64>, stage: &'static str, f: impl FnOnce() -> Result<T>) -> Result<T> {
+fn timed<T>(
+    seconds: &mut BTreeMap<&'static str, f64>,
+    stage: &'static str,
+    f: impl FnOnce() -> Result<T>,
+) -> Result<T> {
     let start = Instant::now();
     let out = f()?;
     seconds.insert(stage, start.elapsed().as_secs_f64());
@@ -212,7 +216,9 @@ pub fn run(args: Args) -> Result<()> {
     for session in &sessions {
         let camera = Camera::default_for_size(0, session.width, session.height);
         let source = session.dir.display().to_string();
-        let record = store.ensure_session(&session.name, &source, &camera).with_context(|| format!("--session {}", session.name))?;
+        let record = store
+            .ensure_session(&session.name, &source, &camera)
+            .with_context(|| format!("--session {}", session.name))?;
         let stored = store.camera(record.camera_id)?;
         if (stored.width, stored.height) != (session.width, session.height) {
             bail!(
@@ -236,7 +242,14 @@ pub fn run(args: Args) -> Result<()> {
     let matching = timed(&mut seconds, "matching", || {
         let pairs = revisit_pipeline::plan_pairs(&sessions, &image_ids, cross, &pair_options);
         let loaded = revisit_pipeline::load_features(&store, image_ids.values().copied())?;
-        Ok(revisit_pipeline::match_pairs(&mut store, &pairs, &loaded, &MatchOptions::default(), &verify_options, &bars)?)
+        Ok(revisit_pipeline::match_pairs(
+            &mut store,
+            &pairs,
+            &loaded,
+            &MatchOptions::default(),
+            &verify_options,
+            &bars,
+        )?)
     })?;
     let records = store.pair_records()?;
     let inputs = {

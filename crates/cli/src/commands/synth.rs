@@ -55,7 +55,11 @@ fn parse_size(text: &str) -> Result<(u32, u32), String> {
     let parse = |s: &str| s.trim().parse::<u32>().map_err(|_| format!("expected WxH such as 640x480, got {text:?}"));
     let (w, h) = (parse(w)?, parse(h)?);
     if w < revisit_synth::MIN_WIDTH || h < revisit_synth::MIN_HEIGHT {
-        return Err(format!("{w}x{h} is smaller than the minimum {}x{}", revisit_synth::MIN_WIDTH, revisit_synth::MIN_HEIGHT));
+        return Err(format!(
+            "{w}x{h} is smaller than the minimum {}x{}",
+            revisit_synth::MIN_WIDTH,
+            revisit_synth::MIN_HEIGHT
+        ));
     }
     if w > revisit_synth::MAX_SIDE || h > revisit_synth::MAX_SIDE {
         return Err(format!("{w}x{h} is larger than the maximum {0}x{0}", revisit_synth::MAX_SIDE));
@@ -131,7 +135,8 @@ fn num(value: f64) -> String {
 }
 
 fn write_truth(survey: &Survey, dir: &Path, eval_pairs: usize) -> anyhow::Result<()> {
-    revisit_colmap::write_text(&survey.truth_model(), dir).with_context(|| format!("writing the truth model to {}", dir.display()))?;
+    revisit_colmap::write_text(&survey.truth_model(), dir)
+        .with_context(|| format!("writing the truth model to {}", dir.display()))?;
 
     let mut poses = String::from("session,image,qw,qx,qy,qz,tx,ty,tz\n");
     for session in survey.sessions() {
@@ -198,7 +203,8 @@ fn uv_list(points: &[[f64; 2]]) -> String {
 fn evaluation_csv(pairs: &[EvaluationPair]) -> String {
     let mut csv = String::from("img0,img1,uv_clicked,uv_groundtruth\n");
     for p in pairs {
-        let _ = writeln!(csv, "{},{},\"{}\",\"{}\"", p.img0, p.img1, uv_list(&p.uv_clicked), uv_list(&p.uv_groundtruth));
+        let _ =
+            writeln!(csv, "{},{},\"{}\",\"{}\"", p.img0, p.img1, uv_list(&p.uv_clicked), uv_list(&p.uv_groundtruth));
     }
     csv
 }
@@ -232,7 +238,11 @@ fn summary(survey: &Survey) -> Summary<'_> {
         .enumerate()
         .map(|(s, plan)| {
             let objects = survey.objects(s).unwrap_or(&[]);
-            let unchanged = if s == 0 { objects.len() } else { objects.iter().filter(|o| survey.object_unchanged(o.id, s - 1, s)).count() };
+            let unchanged = if s == 0 {
+                objects.len()
+            } else {
+                objects.iter().filter(|o| survey.object_unchanged(o.id, s - 1, s)).count()
+            };
             SessionSummary {
                 name: &plan.name,
                 altitude_m: plan.altitude_m,
