@@ -66,14 +66,18 @@ where
 /// Decodes an image to grey, downscaled so its larger side is at most
 /// `max_image_size_px`; returns it with the factor back to full resolution.
 fn load_grey(path: &std::path::Path, max_image_size_px: u32) -> Result<(image::GrayImage, f32), PipelineError> {
-    let bad = |e: image::ImageError| PipelineError::BadImage { path: path.to_path_buf(), reason: e.to_string() };
-    let grey = image::ImageReader::open(path)
-        .map_err(|source| PipelineError::Io { path: path.to_path_buf(), source })?
-        .with_guessed_format()
-        .map_err(|source| PipelineError::Io { path: path.to_path_buf(), source })?
-        .decode()
-        .map_err(bad)?
-        .to_luma8();
+    let bad = |reason: String| PipelineError::BadImage { path: path.to_path_buf(), reason };
+    let bytes = std::fs::read(path).map_err(|source| PipelineError::Io { path: path.to_path_buf(), source })?;
+    let format = image::guess_format(&bytes).map_err(|e| bad(e.to_string()))?;
+    // JPEG decoders fill a cut-off file with grey instead of failing: insist on
+    // the end-of-image marker (trailing padding allowed).
+    if format == image::ImageFormat::Jpeg {
+        let end = bytes.iter().rposition(|&b| b != 0 && b != b'\n' && b != b'\r').unwrap_or(0);
+        if end < 1 || bytes.get(end - 1..=end) != Some(&[0xFF, 0xD9][..]) {
+            return Err(bad("truncated JPEG (no end-of-image marker)".to_owned()));
+        }
+    }
+    let grey = image::load_from_memory_with_format(&bytes, format).map_err(|e| bad(e.to_string()))?.to_luma8();
     let longest = grey.width().max(grey.height());
     if longest <= max_image_size_px {
         return Ok((grey, 1.0));
