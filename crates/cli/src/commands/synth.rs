@@ -23,7 +23,7 @@ const MIN_LISTED_OVERLAP: f64 = 0.1;
 
 #[derive(clap::Args)]
 pub struct Args {
-    /// Output folder (created if missing): sessions/<name>/*.png and truth/.
+    /// Output folder (created if missing): sessions/NAME/*.png and truth/.
     #[arg(long)]
     out: PathBuf,
     /// Number of visits.
