@@ -135,3 +135,120 @@ mod tests {
         assert!((back.scale - 2.0).abs() < 1e-6 && (back.orientation - 0.7).abs() < 1e-6);
     }
 }
+
+/// Learned local features of one image (ALIKED, XFeat): keypoints in the
+/// pixel-corner convention of the image they were extracted from (after any
+/// roll, see [`Roll`]), L2-normalised float descriptors, row-major,
+/// `descriptor_dim` floats per keypoint, and the detector's score per keypoint.
+/// `width` and `height` are that image's size in pixels.
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct LearnedFeatures {
+    pub keypoints: Vec<[f32; 2]>,
+    pub descriptors: Vec<f32>,
+    pub descriptor_dim: usize,
+    pub scores: Vec<f32>,
+    pub width: u32,
+    pub height: u32,
+}
+
+impl LearnedFeatures {
+    pub fn len(&self) -> usize {
+        self.keypoints.len()
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.keypoints.is_empty()
+    }
+
+    /// The `budget` keypoints with the highest scores (ties by index), as a
+    /// new set in that order: what a cheap first look at a pair matches.
+    pub fn strongest(&self, budget: usize) -> LearnedFeatures {
+        let mut order: Vec<usize> = (0..self.len()).collect();
+        order.sort_by(|&a, &b| self.scores[b].total_cmp(&self.scores[a]).then(a.cmp(&b)));
+        order.truncate(budget);
+        let dim = self.descriptor_dim;
+        LearnedFeatures {
+            keypoints: order.iter().map(|&i| self.keypoints[i]).collect(),
+            descriptors: order.iter().flat_map(|&i| self.descriptors[i * dim..(i + 1) * dim].iter().copied()).collect(),
+            descriptor_dim: dim,
+            scores: order.iter().map(|&i| self.scores[i]).collect(),
+            width: self.width,
+            height: self.height,
+        }
+    }
+}
+
+/// A rotation of an image about the optical axis by a multiple of 90 degrees,
+/// clockwise as displayed. Downward-looking cameras revisit a place at any
+/// heading, so cross-visit matching tries all four.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, PartialOrd, Ord, Serialize, Deserialize)]
+pub enum Roll {
+    R0,
+    R90,
+    R180,
+    R270,
+}
+
+impl Roll {
+    pub const ALL: [Roll; 4] = [Roll::R0, Roll::R90, Roll::R180, Roll::R270];
+
+    pub fn degrees(self) -> u32 {
+        match self {
+            Roll::R0 => 0,
+            Roll::R90 => 90,
+            Roll::R180 => 180,
+            Roll::R270 => 270,
+        }
+    }
+
+    pub fn from_degrees(degrees: u32) -> Option<Roll> {
+        Roll::ALL.into_iter().find(|r| r.degrees() == degrees)
+    }
+
+    /// The size of a `width` x `height` image after this roll.
+    pub fn rolled_size(self, width: u32, height: u32) -> (u32, u32) {
+        match self {
+            Roll::R0 | Roll::R180 => (width, height),
+            Roll::R90 | Roll::R270 => (height, width),
+        }
+    }
+
+    /// Maps a point of the rolled image back to the unrolled `width` x
+    /// `height` image (pixel-corner convention, so the map is exact).
+    pub fn unroll_point(self, [x, y]: [f32; 2], width: u32, height: u32) -> [f32; 2] {
+        let (w, h) = (width as f32, height as f32);
+        match self {
+            Roll::R0 => [x, y],
+            Roll::R90 => [y, h - x],
+            Roll::R180 => [w - x, h - y],
+            Roll::R270 => [w - y, x],
+        }
+    }
+
+    /// Maps a point of the unrolled `width` x `height` image into the rolled one.
+    pub fn roll_point(self, [x, y]: [f32; 2], width: u32, height: u32) -> [f32; 2] {
+        let (w, h) = (width as f32, height as f32);
+        match self {
+            Roll::R0 => [x, y],
+            Roll::R90 => [h - y, x],
+            Roll::R180 => [w - x, h - y],
+            Roll::R270 => [y, w - x],
+        }
+    }
+}
+
+#[cfg(test)]
+mod roll_tests {
+    use super::Roll;
+
+    #[test]
+    fn unroll_inverts_roll() {
+        for roll in Roll::ALL {
+            let p = [12.25, 7.5];
+            let rolled = roll.roll_point(p, 64, 48);
+            let (w, h) = roll.rolled_size(64, 48);
+            assert!(rolled[0] >= 0.0 && rolled[0] <= w as f32 && rolled[1] >= 0.0 && rolled[1] <= h as f32);
+            assert_eq!(roll.unroll_point(rolled, 64, 48), p, "{roll:?}");
+        }
+    }
+}

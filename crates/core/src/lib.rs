@@ -12,7 +12,7 @@ mod pose;
 mod reconstruction;
 
 pub use camera::{Camera, CameraModel, CameraModelError};
-pub use features::{pair_from_id, pair_id, Features, Keypoint, TwoViewConfig, TwoViewGeometry};
+pub use features::{pair_from_id, pair_id, Features, Keypoint, LearnedFeatures, Roll, TwoViewConfig, TwoViewGeometry};
 pub use pose::Rigid3;
 pub use reconstruction::{Image, Observation, Point3D, Reconstruction, TrackElement};
 

@@ -2,7 +2,9 @@
 //!
 //! [`extract_sift`] is Lowe's SIFT with COLMAP's conventions: keypoints in the
 //! pixel-corner convention and 128-byte descriptors (RootSIFT by default).
+//! [`learned`] holds ALIKED and XFeat on ONNX Runtime.
 
+pub mod learned;
 mod sift;
 
 pub use sift::{extract_sift, Normalization, SiftOptions, MIN_IMAGE_SIZE_PX};

@@ -5,11 +5,15 @@
 //! in features and get matches and two-view geometries back.
 
 mod descriptors;
+pub mod lightglue;
 mod pairs;
+pub mod roll;
 mod verify;
 
 pub use descriptors::{match_descriptors, MatchOptions};
+pub use lightglue::LightGlue;
 pub use pairs::{exhaustive_pairs, intra_session_pairs, PairOptions};
+pub use roll::{match_with_rolls, CrossMatch, RollSearch};
 pub use verify::{verify, VerifyOptions};
 
 #[derive(Debug, thiserror::Error, PartialEq)]

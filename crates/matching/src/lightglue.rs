@@ -1,0 +1,177 @@
+//! LightGlue-family matchers on ONNX Runtime (LightGlue for ALIKED,
+//! LighterGlue for XFeat). The model returns a log-assignment matrix with a
+//! dustbin row and column; a pair (i, j) matches when j is the best of row i,
+//! i the best of column j (dustbins excluded) and exp(score) exceeds the
+//! threshold. Non-finite scores never match.
+
+use std::path::Path;
+
+use ndarray::{ArrayView, IxDyn};
+use revisit_core::LearnedFeatures;
+use revisit_onnx::{Contract, InputSpec, Model, OnnxError, Runtime};
+
+const LIGHTGLUE_ALIKED: Contract = contract(&[
+    InputSpec { name: "kpts0", shape: &[Some(1), None, Some(2)] },
+    InputSpec { name: "kpts1", shape: &[Some(1), None, Some(2)] },
+    InputSpec { name: "desc0", shape: &[Some(1), None, Some(128)] },
+    InputSpec { name: "desc1", shape: &[Some(1), None, Some(128)] },
+    InputSpec { name: "size0", shape: &[Some(1), Some(2)] },
+    InputSpec { name: "size1", shape: &[Some(1), Some(2)] },
+]);
+
+const LIGHTERGLUE_XFEAT: Contract = contract(&[
+    InputSpec { name: "kpts0", shape: &[Some(1), None, Some(2)] },
+    InputSpec { name: "kpts1", shape: &[Some(1), None, Some(2)] },
+    InputSpec { name: "desc0", shape: &[Some(1), None, Some(64)] },
+    InputSpec { name: "desc1", shape: &[Some(1), None, Some(64)] },
+    InputSpec { name: "size0", shape: &[Some(1), Some(2)] },
+    InputSpec { name: "size1", shape: &[Some(1), Some(2)] },
+]);
+
+const fn contract(inputs: &'static [InputSpec]) -> Contract {
+    Contract { inputs, outputs: &["scores"] }
+}
+
+/// Default minimum match probability.
+pub const DEFAULT_MATCH_THRESHOLD: f32 = 0.1;
+
+/// An opened LightGlue-family model for descriptors of `descriptor_dim`.
+pub struct LightGlue {
+    model: Model,
+    descriptor_dim: usize,
+    /// Minimum exp(score) of a match.
+    pub threshold: f32,
+}
+
+impl LightGlue {
+    /// Opens a matcher for descriptors of `descriptor_dim` floats (128 for
+    /// ALIKED's LightGlue, 64 for XFeat's LighterGlue).
+    pub fn open(runtime: &Runtime, path: &Path, descriptor_dim: usize) -> Result<LightGlue, OnnxError> {
+        let contract = match descriptor_dim {
+            64 => &LIGHTERGLUE_XFEAT,
+            128 => &LIGHTGLUE_ALIKED,
+            other => {
+                return Err(OnnxError::BadModel {
+                    path: path.to_path_buf(),
+                    message: format!("no LightGlue contract for {other}-float descriptors"),
+                })
+            }
+        };
+        Ok(LightGlue {
+            model: Model::open(runtime, path, contract)?,
+            descriptor_dim,
+            threshold: DEFAULT_MATCH_THRESHOLD,
+        })
+    }
+
+    /// The raw log-assignment matrix, (len(a) + 1) x (len(b) + 1), row-major.
+    pub fn scores(&mut self, a: &LearnedFeatures, b: &LearnedFeatures) -> Result<Vec<f32>, OnnxError> {
+        let path = self.model.path().to_path_buf();
+        let bad = |message: String| OnnxError::Run { path: path.clone(), message };
+        for features in [a, b] {
+            if features.descriptor_dim != self.descriptor_dim {
+                return Err(bad(format!(
+                    "descriptors of {} floats given to a matcher for {}",
+                    features.descriptor_dim, self.descriptor_dim
+                )));
+            }
+        }
+        // The models take pixel positions with (0, 0) at the centre of the top-left pixel.
+        let centred =
+            |f: &LearnedFeatures| -> Vec<f32> { f.keypoints.iter().flat_map(|p| [p[0] - 0.5, p[1] - 0.5]).collect() };
+        let (kpts0, kpts1) = (centred(a), centred(b));
+        let size0 = [a.width as f32, a.height as f32];
+        let size1 = [b.width as f32, b.height as f32];
+        let dim = self.descriptor_dim;
+        fn view<'d>(shape: &[usize], data: &'d [f32]) -> Result<ndarray::ArrayViewD<'d, f32>, ndarray::ShapeError> {
+            ArrayView::from_shape(IxDyn(shape), data)
+        }
+        let inputs = [
+            ("kpts0", view(&[1, a.len(), 2], &kpts0)),
+            ("kpts1", view(&[1, b.len(), 2], &kpts1)),
+            ("desc0", view(&[1, a.len(), dim], &a.descriptors)),
+            ("desc1", view(&[1, b.len(), dim], &b.descriptors)),
+            ("size0", view(&[1, 2], &size0)),
+            ("size1", view(&[1, 2], &size1)),
+        ];
+        let mut checked = Vec::with_capacity(inputs.len());
+        for (name, view) in inputs {
+            checked.push((name, view.map_err(|e| bad(format!("input {name}: {e}")))?));
+        }
+        let outputs = self.model.run(&checked, &["scores"])?;
+        let scores = &outputs["scores"];
+        if scores.len() != (a.len() + 1) * (b.len() + 1) {
+            return Err(bad(format!("scores of shape {:?} for {} x {} keypoints", scores.shape(), a.len(), b.len())));
+        }
+        Ok(scores.iter().copied().collect())
+    }
+
+    /// Mutual best matches `[index in a, index in b]` above the threshold.
+    pub fn match_features(&mut self, a: &LearnedFeatures, b: &LearnedFeatures) -> Result<Vec<[u32; 2]>, OnnxError> {
+        if a.is_empty() || b.is_empty() {
+            return Ok(Vec::new());
+        }
+        let scores = self.scores(a, b)?;
+        Ok(mutual_matches(&scores, a.len(), b.len(), self.threshold))
+    }
+}
+
+/// Mutual row/column maxima of the `rows` x `cols` block of a
+/// (rows + 1) x (cols + 1) log-assignment matrix with exp(score) > `threshold`.
+pub fn mutual_matches(scores: &[f32], rows: usize, cols: usize, threshold: f32) -> Vec<[u32; 2]> {
+    let stride = cols + 1;
+    let finite = |v: f32| if v.is_finite() { v } else { f32::NEG_INFINITY };
+    let best_in_row: Vec<Option<usize>> = (0..rows)
+        .map(|i| {
+            let row = &scores[i * stride..i * stride + cols];
+            argmax(row.iter().map(|&v| finite(v)))
+        })
+        .collect();
+    let best_in_column: Vec<Option<usize>> =
+        (0..cols).map(|j| argmax((0..rows).map(|i| finite(scores[i * stride + j])))).collect();
+    let log_threshold = threshold.ln();
+    best_in_row
+        .iter()
+        .enumerate()
+        .filter_map(|(i, best)| {
+            let j = (*best)?;
+            let score = finite(scores[i * stride + j]);
+            (best_in_column[j] == Some(i) && score > log_threshold).then_some([i as u32, j as u32])
+        })
+        .collect()
+}
+
+/// Index of the first largest finite value.
+fn argmax(values: impl Iterator<Item = f32>) -> Option<usize> {
+    let mut best: Option<(usize, f32)> = None;
+    for (i, v) in values.enumerate() {
+        if v.is_finite() && best.is_none_or(|(_, b)| v > b) {
+            best = Some((i, v));
+        }
+    }
+    best.map(|(i, _)| i)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn mutual_matches_skip_dustbins_and_non_finite_scores() {
+        // 2 x 2 block plus dustbins; row 1 is poisoned with -inf except one NaN.
+        let ln = |p: f32| p.ln();
+        let scores = vec![
+            ln(0.9),
+            ln(0.05),
+            ln(0.99), //
+            f32::NEG_INFINITY,
+            f32::NAN,
+            ln(0.5), //
+            ln(0.1),
+            ln(0.1),
+            0.0,
+        ];
+        assert_eq!(mutual_matches(&scores, 2, 2, 0.1), vec![[0, 0]]);
+        assert_eq!(mutual_matches(&scores, 2, 2, 0.95), Vec::<[u32; 2]>::new());
+    }
+}

@@ -1,0 +1,233 @@
+//! ONNX Runtime for Revisit's learned models.
+//!
+//! The runtime is a shared library loaded at run time (`ort`'s `load-dynamic`):
+//! [`Runtime::load`] finds it (an explicit path, `$ORT_DYLIB_PATH`, or the one
+//! inside the project's `.venv`, which `scripts/setup.sh` installs from PyPI's
+//! `onnxruntime` wheel) and checks that it exists before `ort` touches it,
+//! because `ort` panics on a missing library. [`Model::open`] opens a model and
+//! checks its inputs against the [`Contract`] the caller expects, so a wrong
+//! file is one clear error naming the file and the input at fault rather than
+//! a shape error deep inside a run.
+
+use std::collections::HashMap;
+use std::path::{Path, PathBuf};
+use std::sync::OnceLock;
+
+use ndarray::{ArrayD, ArrayViewD};
+use ort::session::Session;
+use ort::value::TensorRef;
+
+/// The environment variable naming the ONNX Runtime library, as `ort` reads it.
+pub const LIBRARY_ENV: &str = "ORT_DYLIB_PATH";
+
+#[derive(Debug, thiserror::Error)]
+pub enum OnnxError {
+    #[error("ONNX Runtime library not found (looked for {looked}); run scripts/setup.sh or set {LIBRARY_ENV}")]
+    NoLibrary { looked: String },
+    #[error("ONNX Runtime library {path}: {message}")]
+    BadLibrary { path: PathBuf, message: String },
+    #[error("model {path}: file not found (scripts/get-models.sh makes the model files)")]
+    MissingModel { path: PathBuf },
+    #[error("model {path}: {message}")]
+    BadModel { path: PathBuf, message: String },
+    #[error("model {path}: input `{input}` {message}")]
+    Contract { path: PathBuf, input: String, message: String },
+    #[error("model {path}: run failed: {message}")]
+    Run { path: PathBuf, message: String },
+}
+
+/// A loaded ONNX Runtime. Only one library can be loaded per process; the
+/// first successful [`Runtime::load`] wins and later calls share it.
+#[derive(Clone)]
+pub struct Runtime {
+    environment: ort::environment::Environment,
+    threads: usize,
+}
+
+static RUNTIME: OnceLock<Result<(PathBuf, ort::environment::Environment), String>> = OnceLock::new();
+
+impl Runtime {
+    /// Loads ONNX Runtime from `explicit`, else `$ORT_DYLIB_PATH`, else the
+    /// `.venv` of the current folder or of any parent of the executable.
+    /// `threads` is the number of threads each model runs on (0: all cores).
+    pub fn load(explicit: Option<&Path>, threads: usize) -> Result<Runtime, OnnxError> {
+        let path = find_library(explicit)?;
+        let loaded = RUNTIME.get_or_init(|| {
+            let environment = ort::init_from(&path)
+                .map_err(|e| e.to_string())?
+                .with_name("revisit")
+                .build()
+                .map_err(|e| e.to_string())?;
+            Ok((path.clone(), environment))
+        });
+        match loaded {
+            Ok((_, environment)) => Ok(Runtime { environment: environment.clone(), threads }),
+            Err(message) => Err(OnnxError::BadLibrary { path, message: message.clone() }),
+        }
+    }
+}
+
+fn find_library(explicit: Option<&Path>) -> Result<PathBuf, OnnxError> {
+    let mut candidates: Vec<PathBuf> = Vec::new();
+    if let Some(path) = explicit {
+        candidates.push(path.to_path_buf());
+    } else if let Some(env) = std::env::var_os(LIBRARY_ENV) {
+        candidates.push(PathBuf::from(env));
+    } else {
+        let mut roots: Vec<PathBuf> = Vec::new();
+        if let Ok(cwd) = std::env::current_dir() {
+            roots.push(cwd);
+        }
+        if let Ok(exe) = std::env::current_exe() {
+            roots.extend(exe.ancestors().skip(1).map(Path::to_path_buf));
+        }
+        for root in roots {
+            candidates.extend(venv_libraries(&root.join(".venv")));
+        }
+    }
+    candidates.iter().find(|p| p.is_file()).cloned().ok_or_else(|| OnnxError::NoLibrary {
+        looked: if candidates.is_empty() {
+            ".venv/lib/python3*/site-packages/onnxruntime/capi/libonnxruntime.so*".to_owned()
+        } else {
+            candidates.iter().map(|p| p.display().to_string()).collect::<Vec<_>>().join(", ")
+        },
+    })
+}
+
+/// `libonnxruntime.so*` files of the onnxruntime wheel inside a virtual environment.
+fn venv_libraries(venv: &Path) -> Vec<PathBuf> {
+    let mut found = Vec::new();
+    let Ok(pythons) = std::fs::read_dir(venv.join("lib")) else { return found };
+    for python in pythons.flatten() {
+        let capi = python.path().join("site-packages").join("onnxruntime").join("capi");
+        let Ok(files) = std::fs::read_dir(&capi) else { continue };
+        let mut libraries: Vec<PathBuf> = files
+            .flatten()
+            .map(|f| f.path())
+            .filter(|p| p.file_name().and_then(|n| n.to_str()).is_some_and(|n| n.starts_with("libonnxruntime.so")))
+            .collect();
+        libraries.sort();
+        found.extend(libraries);
+    }
+    found
+}
+
+/// One input a model must have: its name and shape, `None` for a dimension
+/// the caller chooses (dynamic in the model, or read back with
+/// [`Model::input_shape`]).
+#[derive(Debug, Clone, Copy)]
+pub struct InputSpec {
+    pub name: &'static str,
+    pub shape: &'static [Option<i64>],
+}
+
+/// The inputs and outputs a caller relies on. Extra outputs are allowed.
+#[derive(Debug, Clone, Copy)]
+pub struct Contract {
+    pub inputs: &'static [InputSpec],
+    pub outputs: &'static [&'static str],
+}
+
+/// An opened model that satisfies its contract.
+pub struct Model {
+    path: PathBuf,
+    session: Session,
+}
+
+impl Model {
+    /// Opens `path` and checks it against `contract`: every input by name,
+    /// rank, float type and fixed dimensions, every output by name.
+    pub fn open(runtime: &Runtime, path: &Path, contract: &Contract) -> Result<Model, OnnxError> {
+        if !path.is_file() {
+            return Err(OnnxError::MissingModel { path: path.to_path_buf() });
+        }
+        let bad = |e: ort::Error| OnnxError::BadModel { path: path.to_path_buf(), message: e.to_string() };
+        let mut builder = Session::builder(&runtime.environment).map_err(bad)?;
+        if runtime.threads > 0 {
+            builder = builder.with_intra_threads(runtime.threads).map_err(|e| bad(e.into()))?;
+        }
+        let session = builder.commit_from_file(path).map_err(bad)?;
+        let model = Model { path: path.to_path_buf(), session };
+        model.check(contract)?;
+        Ok(model)
+    }
+
+    fn check(&self, contract: &Contract) -> Result<(), OnnxError> {
+        let error = |input: &str, message: String| OnnxError::Contract {
+            path: self.path.clone(),
+            input: input.to_owned(),
+            message,
+        };
+        for spec in contract.inputs {
+            let Some(outlet) = self.session.inputs().iter().find(|o| o.name() == spec.name) else {
+                let names: Vec<&str> = self.session.inputs().iter().map(|o| o.name()).collect();
+                return Err(error(spec.name, format!("is missing (the model's inputs are {names:?})")));
+            };
+            if outlet.dtype().tensor_type() != Some(ort::value::TensorElementType::Float32) {
+                return Err(error(spec.name, format!("must be a float32 tensor, not {}", outlet.dtype())));
+            }
+            let shape: &[i64] = outlet.dtype().tensor_shape().map(|s| &s[..]).unwrap_or(&[]);
+            let expected: Vec<String> =
+                spec.shape.iter().map(|d| d.map_or_else(|| "?".to_owned(), |d| d.to_string())).collect();
+            let fits = shape.len() == spec.shape.len()
+                && shape.iter().zip(spec.shape).all(|(&got, want)| want.is_none_or(|w| got == w || got < 0));
+            if !fits {
+                return Err(error(spec.name, format!("has shape {shape:?}, expected [{}]", expected.join(", "))));
+            }
+        }
+        for output in contract.outputs {
+            if !self.session.outputs().iter().any(|o| o.name() == *output) {
+                return Err(OnnxError::BadModel { path: self.path.clone(), message: format!("no output `{output}`") });
+            }
+        }
+        Ok(())
+    }
+
+    /// The declared shape of input `name` (-1 for a dynamic dimension).
+    pub fn input_shape(&self, name: &str) -> Option<Vec<i64>> {
+        let outlet = self.session.inputs().iter().find(|o| o.name() == name)?;
+        outlet.dtype().tensor_shape().map(|s| s.to_vec())
+    }
+
+    pub fn path(&self) -> &Path {
+        &self.path
+    }
+
+    /// Runs the model on named float inputs and returns the requested float outputs.
+    pub fn run(
+        &mut self,
+        inputs: &[(&str, ArrayViewD<'_, f32>)],
+        outputs: &[&str],
+    ) -> Result<HashMap<String, ArrayD<f32>>, OnnxError> {
+        let path = self.path.clone();
+        let fail = |e: ort::Error| OnnxError::Run { path: path.clone(), message: e.to_string() };
+        let mut values = Vec::with_capacity(inputs.len());
+        for (name, array) in inputs {
+            let tensor = TensorRef::from_array_view(array.view()).map_err(fail)?;
+            values.push((std::borrow::Cow::Borrowed(*name), ort::session::SessionInputValue::from(tensor)));
+        }
+        let results = self.session.run(values).map_err(fail)?;
+        let mut out = HashMap::new();
+        for name in outputs {
+            let value = results
+                .get(*name)
+                .ok_or_else(|| OnnxError::Run { path: self.path.clone(), message: format!("no output `{name}`") })?;
+            let array = value.try_extract_array::<f32>().map_err(fail)?;
+            out.insert((*name).to_owned(), array.to_owned());
+        }
+        Ok(out)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_missing_library_is_an_error_naming_the_path() {
+        let Err(error) = find_library(Some(Path::new("/nonexistent/libonnxruntime.so"))) else {
+            panic!("a missing library was accepted");
+        };
+        assert!(error.to_string().contains("/nonexistent/libonnxruntime.so"), "{error}");
+    }
+}
