@@ -76,7 +76,7 @@ impl Aliked {
     pub fn run(&mut self, input: &Planar) -> Result<LearnedFeatures, OnnxError> {
         let view = ArrayView::from_shape(IxDyn(&[1, 3, input.height, input.width]), &input.data)
             .map_err(|e| shape_error(&self.model, e.to_string()))?;
-        let outputs = self.model.run(&[("image", view)], &CONTRACT.outputs)?;
+        let outputs = self.model.run(&[("image", view)], CONTRACT.outputs)?;
         let keypoints = &outputs["keypoints"];
         let descriptors = &outputs["descriptors"];
         let scores = &outputs["scores"];

@@ -89,7 +89,7 @@ impl XFeat {
     pub fn backbone(&mut self, input: &Planar) -> Result<BackboneOutput, OnnxError> {
         let view = ArrayView::from_shape(IxDyn(&[1, 1, input.height, input.width]), &input.data)
             .map_err(|e| shape_error(&self.model, e.to_string()))?;
-        let mut outputs = self.model.run(&[("image", view)], &CONTRACT.outputs)?;
+        let mut outputs = self.model.run(&[("image", view)], CONTRACT.outputs)?;
         let mut take = |name: &str| -> Result<ArrayD<f32>, OnnxError> {
             let array = outputs.remove(name).unwrap_or_default();
             let shape = array.shape().to_vec();
