@@ -36,7 +36,8 @@ fn unchanged_reef_reconstructs_to_subpixel_cross_visit_error() {
         args.push("--session".into());
         args.push(format!("{name}={}", reef.join("sessions").join(name).display()));
     }
-    args.extend(["--max-features", "1024"].map(String::from));
+    // An unchanged reef links with SIFT alone: this is the spine's test.
+    args.extend(["--max-features", "1024", "--cross", "sift"].map(String::from));
     run_ok(&args.iter().map(String::as_str).collect::<Vec<_>>());
     let report = read_json(&work.join("report.json"));
     assert_eq!(report["models"], 1, "{report:#}");

@@ -23,10 +23,18 @@ pub fn python() -> PathBuf {
     python
 }
 
-/// The `revisit` binary with the project's Python.
+/// The shared model files (`../shared/models`), as a user points
+/// `REVISIT_MODELS` at them.
+pub fn models() -> PathBuf {
+    let path = repo().join("../shared/models");
+    assert!(path.is_dir(), "{} is missing: the tests need ../shared beside the checkout", path.display());
+    path
+}
+
+/// The `revisit` binary with the project's Python and the shared models.
 pub fn revisit() -> Command {
     let mut command = Command::new(env!("CARGO_BIN_EXE_revisit"));
-    command.env("REVISIT_PYTHON", python()).env("RUST_LOG", "warn");
+    command.env("REVISIT_PYTHON", python()).env("REVISIT_MODELS", models()).env("RUST_LOG", "warn");
     command
 }
 

@@ -29,6 +29,8 @@ enum Command {
     Synth(commands::synth::Args),
     /// Score a reconstruction with the published cross-visit reprojection protocol.
     Eval(commands::eval::Args),
+    /// Match two images (learned or SIFT, with roll search) and show the verified matches.
+    Match(commands::match_pair::Args),
     /// Benchmarks that print Revisit's figures beside a reference implementation.
     #[command(subcommand)]
     Bench(commands::bench::Bench),
@@ -41,6 +43,7 @@ fn main() -> std::process::ExitCode {
         Command::Reconstruct(args) => commands::reconstruct::run(args),
         Command::Synth(args) => commands::synth::run(args),
         Command::Eval(args) => commands::eval::run(args),
+        Command::Match(args) => commands::match_pair::run(args),
         Command::Bench(bench) => commands::bench::run(bench),
     };
     match result {

@@ -117,6 +117,20 @@ pub struct TwoViewGeometry {
     pub cam2_from_cam1: Option<Rigid3>,
 }
 
+impl TwoViewGeometry {
+    /// A pair that did not verify: no inliers, no model.
+    pub fn degenerate() -> TwoViewGeometry {
+        TwoViewGeometry {
+            config: TwoViewConfig::Degenerate,
+            inlier_matches: Vec::new(),
+            f: None,
+            e: None,
+            h: None,
+            cam2_from_cam1: None,
+        }
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

@@ -4,12 +4,14 @@
 //! Invariant: pure given features. No files, no store, no topics: callers hand
 //! in features and get matches and two-view geometries back.
 
+mod anchor;
 mod descriptors;
 pub mod lightglue;
 mod pairs;
 pub mod roll;
 mod verify;
 
+pub use anchor::anchor_keypoints;
 pub use descriptors::{match_descriptors, MatchOptions};
 pub use lightglue::LightGlue;
 pub use pairs::{exhaustive_pairs, intra_session_pairs, PairOptions};

@@ -2,31 +2,37 @@
 //! 0, 90, 180 and 270 degrees, and the roll with the most geometrically
 //! verified inliers wins. Matches come back against the unrolled images.
 //!
-//! [`RollSearch::Probe`] is the cheap way to the same answer: it decides the
-//! roll by matching only the strongest keypoints of each image at every roll
-//! (LightGlue's cost grows with the product of the two keypoint counts), then
-//! matches the full sets once, at the chosen roll.
+//! [`RollSearch::Probe`] is the cheap way to the same answer: it matches only
+//! the strongest keypoints of each image at every roll (LightGlue's cost grows
+//! with the product of the two keypoint counts). If one roll wins the probe
+//! clearly, the full sets are matched once, at that roll; if none does (a hard
+//! pair, or one that shows no common place), it falls back to the full search.
 
-use revisit_core::{Keypoint, LearnedFeatures, Roll, TwoViewConfig, TwoViewGeometry};
+use revisit_core::{Keypoint, LearnedFeatures, Roll, TwoViewGeometry};
 use revisit_onnx::OnnxError;
 
 use crate::lightglue::LightGlue;
 use crate::verify::{verify, VerifyOptions};
 
 /// How to choose the roll of the second image.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[derive(Clone, Copy, Debug, PartialEq)]
 pub enum RollSearch {
     /// Match at roll 0 only.
     Off,
     /// Match the full keypoint sets at every roll (4 matches per pair).
     Full,
-    /// Decide on the `budget` strongest keypoints of each image, then match once in full.
-    Probe { budget: usize },
+    /// Decide on the `budget` strongest keypoints of each image, then match
+    /// once in full; if no roll wins the probe by `margin` (see
+    /// [`CrossMatch::roll_is_clear`]), search in full.
+    Probe { budget: usize, margin: f32 },
 }
 
+/// How much the winning roll's inliers must exceed the runner-up's, by default.
+pub const DEFAULT_ROLL_MARGIN: f32 = 1.5;
+
 impl RollSearch {
-    /// The default probe: 256 keypoints a side.
-    pub const DEFAULT: RollSearch = RollSearch::Probe { budget: 256 };
+    /// The default probe: 256 keypoints a side, margin [`DEFAULT_ROLL_MARGIN`].
+    pub const DEFAULT: RollSearch = RollSearch::Probe { budget: 256, margin: DEFAULT_ROLL_MARGIN };
 
     /// The rolls of the second image that this search needs features for.
     pub fn rolls(self) -> &'static [Roll] {
@@ -46,8 +52,25 @@ pub struct CrossMatch {
     pub matches: Vec<[u32; 2]>,
     /// Verified geometry between the unrolled images (same indices).
     pub geometry: TwoViewGeometry,
-    /// Inliers found at each roll tried (probe counts for a probe), for reports.
+    /// Inliers found at each roll tried (probe counts for a conclusive probe).
     pub inliers_by_roll: Vec<(Roll, usize)>,
+    /// Whether a probe was inconclusive and the full search ran.
+    pub fell_back: bool,
+}
+
+impl CrossMatch {
+    /// Whether the winning roll stands out: its inliers are at least `margin`
+    /// times those of the runner-up (always, when one roll was tried). On a
+    /// pair that shows no common place every roll finds a few chance inliers,
+    /// about as many at each; on a true pair one roll wins clearly.
+    pub fn roll_is_clear(&self, margin: f32) -> bool {
+        let mut counts: Vec<usize> = self.inliers_by_roll.iter().map(|(_, n)| *n).collect();
+        counts.sort_unstable_by(|a, b| b.cmp(a));
+        match counts[..] {
+            [best, runner_up, ..] => best as f32 >= margin * runner_up as f32 && best > 0,
+            _ => true,
+        }
+    }
 }
 
 /// Keypoints of `features`, extracted at `roll`, mapped back to the unrolled image.
@@ -77,58 +100,70 @@ pub fn match_with_rolls(
         let matches = matcher.match_features(a, b)?;
         let geometry = verify(&a_keypoints, &unrolled_keypoints(b, roll), &matches, verify_options);
         let inliers = geometry.inlier_matches.len();
-        Ok(CrossMatch { roll, matches, geometry, inliers_by_roll: vec![(roll, inliers)] })
+        Ok(CrossMatch { roll, matches, geometry, inliers_by_roll: vec![(roll, inliers)], fell_back: false })
     };
     let candidates: Vec<&(Roll, LearnedFeatures)> =
         b_by_roll.iter().filter(|(roll, _)| search.rolls().contains(roll)).collect();
     let Some(first) = candidates.first() else {
-        let geometry = TwoViewGeometry {
-            config: TwoViewConfig::Degenerate,
-            inlier_matches: Vec::new(),
-            f: None,
-            e: None,
-            h: None,
-            cam2_from_cam1: None,
-        };
-        return Ok(CrossMatch { roll: Roll::R0, matches: Vec::new(), geometry, inliers_by_roll: Vec::new() });
+        let geometry = TwoViewGeometry::degenerate();
+        return Ok(CrossMatch {
+            roll: Roll::R0,
+            matches: Vec::new(),
+            geometry,
+            inliers_by_roll: Vec::new(),
+            fell_back: false,
+        });
+    };
+    let full_search = |matcher: &mut LightGlue| -> Result<CrossMatch, OnnxError> {
+        let mut best: Option<CrossMatch> = None;
+        let mut tried = Vec::new();
+        for (roll, b) in &candidates {
+            let result = full(matcher, *roll, b)?;
+            let inliers = result.geometry.inlier_matches.len();
+            tried.push((*roll, inliers));
+            if best.as_ref().is_none_or(|b| inliers > b.geometry.inlier_matches.len()) {
+                best = Some(result);
+            }
+        }
+        let mut best = best.unwrap_or_else(|| unreachable!("at least one roll was tried"));
+        best.inliers_by_roll = tried;
+        Ok(best)
     };
     match search {
         RollSearch::Off => full(matcher, first.0, &first.1),
-        RollSearch::Full => {
-            let mut best: Option<CrossMatch> = None;
-            let mut tried = Vec::new();
-            for (roll, b) in candidates {
-                let result = full(matcher, *roll, b)?;
-                let inliers = result.geometry.inlier_matches.len();
-                tried.push((*roll, inliers));
-                if best.as_ref().is_none_or(|b| inliers > b.geometry.inlier_matches.len()) {
-                    best = Some(result);
-                }
-            }
-            let mut best = best.unwrap_or_else(|| unreachable!("at least one roll was tried"));
-            best.inliers_by_roll = tried;
-            Ok(best)
-        }
-        RollSearch::Probe { budget } => {
+        RollSearch::Full => full_search(matcher),
+        RollSearch::Probe { budget, margin } => {
             let a_probe = a.strongest(budget);
             let a_probe_keypoints = unrolled_keypoints(&a_probe, Roll::R0);
-            let mut tried = Vec::new();
-            let mut best: Option<(Roll, usize, usize, &LearnedFeatures)> = None;
-            for (roll, b) in candidates {
+            let mut probe = CrossMatch {
+                roll: first.0,
+                matches: Vec::new(),
+                geometry: TwoViewGeometry::degenerate(),
+                inliers_by_roll: Vec::new(),
+                fell_back: false,
+            };
+            let mut best: Option<(usize, usize, &LearnedFeatures)> = None;
+            for (roll, b) in &candidates {
                 let b_probe = b.strongest(budget);
                 let matches = matcher.match_features(&a_probe, &b_probe)?;
                 let geometry =
                     verify(&a_probe_keypoints, &unrolled_keypoints(&b_probe, *roll), &matches, verify_options);
                 let inliers = geometry.inlier_matches.len();
-                tried.push((*roll, inliers));
+                probe.inliers_by_roll.push((*roll, inliers));
                 // Most verified inliers; among none, most raw matches.
-                if best.is_none_or(|(_, i, m, _)| (inliers, matches.len()) > (i, m)) {
-                    best = Some((*roll, inliers, matches.len(), b));
+                if best.is_none_or(|(i, m, _)| (inliers, matches.len()) > (i, m)) {
+                    best = Some((inliers, matches.len(), b));
+                    probe.roll = *roll;
                 }
             }
-            let (roll, _, _, b) = best.unwrap_or_else(|| unreachable!("at least one roll was tried"));
-            let mut result = full(matcher, roll, b)?;
-            result.inliers_by_roll = tried;
+            if !probe.roll_is_clear(margin) {
+                let mut result = full_search(matcher)?;
+                result.fell_back = true;
+                return Ok(result);
+            }
+            let (_, _, b) = best.unwrap_or_else(|| unreachable!("at least one roll was tried"));
+            let mut result = full(matcher, probe.roll, b)?;
+            result.inliers_by_roll = probe.inliers_by_roll;
             Ok(result)
         }
     }

@@ -39,17 +39,6 @@ impl VerifyOptions {
     }
 }
 
-fn degenerate() -> TwoViewGeometry {
-    TwoViewGeometry {
-        config: TwoViewConfig::Degenerate,
-        inlier_matches: Vec::new(),
-        f: None,
-        e: None,
-        h: None,
-        cam2_from_cam1: None,
-    }
-}
-
 /// Verifies `matches` (`[index in image 1, index in image 2]`) between the
 /// keypoints of two images. Pairs with fewer than `min_inliers` inliers come
 /// back [`TwoViewConfig::Degenerate`] with no inliers; others
@@ -72,7 +61,7 @@ pub fn verify(
         valid.push(*m);
     }
     if valid.len() < options.min_inliers.max(8) {
-        return degenerate();
+        return TwoViewGeometry::degenerate();
     }
     let params = RansacParams {
         max_iterations: options.max_iterations,
@@ -82,13 +71,13 @@ pub fn verify(
         refit: true,
     };
     let Ok(result) = ransac_fundamental(&x1, &x2, &params) else {
-        return degenerate();
+        return TwoViewGeometry::degenerate();
     };
     let inlier_matches: Vec<[u32; 2]> =
         valid.iter().zip(&result.inliers).filter(|(_, &inlier)| inlier).map(|(m, _)| *m).collect();
     let ratio = inlier_matches.len() as f64 / valid.len() as f64;
     if inlier_matches.len() < options.min_inliers || ratio < options.min_inlier_ratio {
-        return degenerate();
+        return TwoViewGeometry::degenerate();
     }
     // kornia's matrices are column-major, as nalgebra's storage.
     let f = Matrix3::from_column_slice(&result.model.to_cols_array());

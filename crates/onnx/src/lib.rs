@@ -128,6 +128,25 @@ pub struct Contract {
     pub outputs: &'static [&'static str],
 }
 
+/// A model input or output as declared: name, whether it is a float tensor,
+/// and its shape (-1 for a dynamic dimension).
+#[derive(Clone, Debug, PartialEq)]
+pub struct Outlet {
+    pub name: String,
+    pub is_float_tensor: bool,
+    pub shape: Vec<i64>,
+}
+
+impl Outlet {
+    fn of(outlet: &ort::value::Outlet) -> Outlet {
+        Outlet {
+            name: outlet.name().to_owned(),
+            is_float_tensor: outlet.dtype().tensor_type() == Some(ort::value::TensorElementType::Float32),
+            shape: outlet.dtype().tensor_shape().map(|s| s.to_vec()).unwrap_or_default(),
+        }
+    }
+}
+
 /// An opened model that satisfies its contract.
 pub struct Model {
     path: PathBuf,
@@ -138,6 +157,14 @@ impl Model {
     /// Opens `path` and checks it against `contract`: every input by name,
     /// rank, float type and fixed dimensions, every output by name.
     pub fn open(runtime: &Runtime, path: &Path, contract: &Contract) -> Result<Model, OnnxError> {
+        let model = Model::open_unchecked(runtime, path)?;
+        model.check(contract)?;
+        Ok(model)
+    }
+
+    /// Opens `path` without a contract: for models whose input and output
+    /// names are the user's (the caller checks [`Model::inputs`]).
+    pub fn open_unchecked(runtime: &Runtime, path: &Path) -> Result<Model, OnnxError> {
         if !path.is_file() {
             return Err(OnnxError::MissingModel { path: path.to_path_buf() });
         }
@@ -147,9 +174,17 @@ impl Model {
             builder = builder.with_intra_threads(runtime.threads).map_err(|e| bad(e.into()))?;
         }
         let session = builder.commit_from_file(path).map_err(bad)?;
-        let model = Model { path: path.to_path_buf(), session };
-        model.check(contract)?;
-        Ok(model)
+        Ok(Model { path: path.to_path_buf(), session })
+    }
+
+    /// Every input: name, element type (None if not a tensor) and declared shape.
+    pub fn inputs(&self) -> Vec<Outlet> {
+        self.session.inputs().iter().map(Outlet::of).collect()
+    }
+
+    /// Every output, as [`Model::inputs`].
+    pub fn outputs(&self) -> Vec<Outlet> {
+        self.session.outputs().iter().map(Outlet::of).collect()
     }
 
     fn check(&self, contract: &Contract) -> Result<(), OnnxError> {

@@ -89,3 +89,12 @@ pub fn pair_reports(records: &[revisit_store::PairRecord]) -> BTreeMap<String, P
     }
     reports
 }
+
+/// Verified cross-session pairs by the roll of their second image, degrees.
+pub fn roll_histogram(records: &[revisit_store::PairRecord]) -> BTreeMap<u32, usize> {
+    let mut histogram = BTreeMap::new();
+    for record in records.iter().filter(|r| r.kind == "cross" && r.num_inliers > 0) {
+        *histogram.entry(record.roll_deg.unsigned_abs()).or_default() += 1;
+    }
+    histogram
+}

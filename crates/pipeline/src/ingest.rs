@@ -92,6 +92,9 @@ pub fn scan_session(spec: &SessionSpec) -> Result<SessionImages, PipelineError> 
     let Some(first) = files.first() else {
         return Err(PipelineError::NoImages { session: spec.name.clone(), dir });
     };
+    if files.len() == 1 {
+        return Err(PipelineError::OneImage { session: spec.name.clone(), dir });
+    }
     let size = |file: &str| {
         let path = dir.join(file);
         image::image_dimensions(&path).map_err(|e| PipelineError::BadImage { path, reason: e.to_string() })
@@ -138,6 +141,7 @@ mod tests {
         let spec = SessionSpec { name: "s".into(), dir: dir.path().into() };
         assert!(matches!(scan_session(&spec), Err(PipelineError::NoImages { .. })));
         image::GrayImage::new(32, 24).save(dir.path().join("b.png")).unwrap();
+        assert!(matches!(scan_session(&spec), Err(PipelineError::OneImage { .. })));
         image::GrayImage::new(32, 24).save(dir.path().join("a.png")).unwrap();
         let images = scan_session(&spec).unwrap();
         assert_eq!(images.files, vec!["a.png", "b.png"]);

@@ -8,8 +8,10 @@
 //! Invariant: the stage libraries (`features`, `matching`) stay pure; this
 //! crate is where they meet files, the store and COLMAP.
 
+pub mod cross;
 pub mod export;
 pub mod ingest;
+pub mod learned;
 pub mod mapping;
 mod stages;
 
@@ -23,6 +25,8 @@ pub enum PipelineError {
     Io { path: PathBuf, source: std::io::Error },
     #[error("session {session}: folder {dir} holds no images (.png, .jpg, .jpeg)")]
     NoImages { session: String, dir: PathBuf },
+    #[error("session {session}: {dir} holds one image; a session needs at least two")]
+    OneImage { session: String, dir: PathBuf },
     #[error("session {0} is given twice")]
     DuplicateSession(String),
     #[error("{path}: unreadable image: {reason}")]
@@ -34,6 +38,8 @@ pub enum PipelineError {
     MixedSizes { session: String, path: PathBuf, size: (u32, u32), first: PathBuf, first_size: (u32, u32) },
     #[error("{path}: {reason}")]
     Features { path: PathBuf, reason: String },
+    #[error("matching images {} and {}: {reason}", pair.0, pair.1)]
+    Matching { pair: (revisit_core::ImageId, revisit_core::ImageId), reason: String },
     #[error(transparent)]
     Store(#[from] revisit_store::StoreError),
     #[error(transparent)]

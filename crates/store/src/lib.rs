@@ -7,7 +7,10 @@
 //! run leaves complete records only, and "is it done?" is "is the row there?".
 
 mod blob;
+mod learned;
 mod schema;
+
+pub use learned::{CrossKey, CrossSide};
 
 use std::collections::{BTreeMap, BTreeSet};
 use std::path::{Path, PathBuf};
@@ -66,6 +69,10 @@ impl Store {
     pub fn open(path: &Path) -> Result<Self> {
         let conn = Connection::open(path).map_err(|source| StoreError::Sqlite { path: path.into(), source })?;
         let store = Self { conn, path: path.to_path_buf() };
+        // Write-ahead logging: readers watching a running reconstruction (a
+        // viewer, a node, a test) neither block the writer nor starve behind it.
+        let _mode: String =
+            store.conn.query_row("PRAGMA journal_mode=WAL", [], |row| row.get(0)).map_err(|e| store.sql(e))?;
         store.conn.execute_batch(schema::SCHEMA).map_err(|e| store.sql(e))?;
         Ok(store)
     }
@@ -225,6 +232,8 @@ impl Store {
         tx.commit().map_err(sql)
     }
 
+    /// The image's own (SIFT) features: keypoints with descriptors. Keypoints
+    /// that cross-visit matching appended after them are not included.
     pub fn read_features(&self, image_id: ImageId) -> Result<Features> {
         let what = || format!("features of image {image_id}");
         let row = self
@@ -250,11 +259,13 @@ impl Store {
             return Err(StoreError::UnknownImage { path: self.path.clone(), image_id });
         };
         let values = blob::to_f32s(&kp_blob).ok_or_else(|| self.corrupt(what(), "keypoint blob length"))?;
-        if values.len() != rows * cols || drows != rows || descriptors.len() != drows * dcols || cols == 0 {
+        if values.len() != rows * cols || drows > rows || descriptors.len() != drows * dcols || cols == 0 {
             return Err(self.corrupt(what(), "row/column counts disagree with the blobs"));
         }
+        // Keypoints past the descriptors' rows were added by cross-visit matching.
         let keypoints = values
             .chunks_exact(cols)
+            .take(drows)
             .map(|row| Keypoint::from_columns(row).ok_or_else(|| self.corrupt(what(), format!("{cols} columns"))))
             .collect::<Result<Vec<_>>>()?;
         Ok(Features { keypoints, descriptors, descriptor_dim: dcols })
@@ -273,51 +284,8 @@ impl Store {
     pub fn write_pair(&mut self, record: &PairRecord, matches: &[[u32; 2]], geometry: &TwoViewGeometry) -> Result<()> {
         let path = self.path.clone();
         let sql = |source| StoreError::Sqlite { path: path.clone(), source };
-        let id = pair_id(record.image_id1, record.image_id2);
-        let swapped = record.image_id1 > record.image_id2;
-        let ordered = |m: &[[u32; 2]]| -> Vec<u32> {
-            m.iter().flat_map(|&[a, b]| if swapped { [b, a] } else { [a, b] }).collect()
-        };
-        let transpose = |m: &nalgebra::Matrix3<f64>| if swapped { m.transpose() } else { *m };
-        let matrix = |m: Option<nalgebra::Matrix3<f64>>| m.map(|m| blob::matrix_row_major(&transpose(&m)));
-        let pose = geometry.cam2_from_cam1.map(|p| if swapped { p.inverse() } else { p });
         let tx = self.conn.transaction().map_err(sql)?;
-        tx.execute(
-            "INSERT OR REPLACE INTO matches (pair_id, rows, cols, data) VALUES (?1, ?2, 2, ?3)",
-            params![id as i64, matches.len() as i64, blob::u32s(&ordered(matches))],
-        )
-        .map_err(sql)?;
-        tx.execute(
-            "INSERT OR REPLACE INTO two_view_geometries (pair_id, rows, cols, data, config, F, E, H, qvec, tvec) \
-             VALUES (?1, ?2, 2, ?3, ?4, ?5, ?6, ?7, ?8, ?9)",
-            params![
-                id as i64,
-                geometry.inlier_matches.len() as i64,
-                blob::u32s(&ordered(&geometry.inlier_matches)),
-                geometry.config as i32,
-                matrix(geometry.f),
-                matrix(geometry.e),
-                matrix(geometry.h),
-                pose.map(|p| blob::f64s(&p.wxyz())),
-                pose.map(|p| blob::f64s(p.translation.as_slice())),
-            ],
-        )
-        .map_err(sql)?;
-        tx.execute(
-            "INSERT OR REPLACE INTO revisit_pairs (pair_id, image_id1, image_id2, kind, method, roll_deg, \
-             num_matches, num_inliers) VALUES (?1, ?2, ?3, ?4, ?5, ?6, ?7, ?8)",
-            params![
-                id as i64,
-                record.image_id1.min(record.image_id2),
-                record.image_id1.max(record.image_id2),
-                record.kind,
-                record.method,
-                record.roll_deg,
-                record.num_matches as i64,
-                record.num_inliers as i64
-            ],
-        )
-        .map_err(sql)?;
+        insert_pair(&tx, record, matches, geometry).map_err(sql)?;
         tx.commit().map_err(sql)
     }
 
@@ -362,6 +330,56 @@ impl Store {
         let matches = values.chunks_exact(2).map(|c| [c[0], c[1]]).collect();
         Ok(Some((TwoViewConfig::from_code(config), matches)))
     }
+}
+
+/// Writes a pair's matches, two-view geometry and record inside `tx`.
+fn insert_pair(
+    tx: &rusqlite::Transaction<'_>,
+    record: &PairRecord,
+    matches: &[[u32; 2]],
+    geometry: &TwoViewGeometry,
+) -> rusqlite::Result<()> {
+    let id = pair_id(record.image_id1, record.image_id2);
+    let swapped = record.image_id1 > record.image_id2;
+    let ordered =
+        |m: &[[u32; 2]]| -> Vec<u32> { m.iter().flat_map(|&[a, b]| if swapped { [b, a] } else { [a, b] }).collect() };
+    let transpose = |m: &nalgebra::Matrix3<f64>| if swapped { m.transpose() } else { *m };
+    let matrix = |m: Option<nalgebra::Matrix3<f64>>| m.map(|m| blob::matrix_row_major(&transpose(&m)));
+    let pose = geometry.cam2_from_cam1.map(|p| if swapped { p.inverse() } else { p });
+    tx.execute(
+        "INSERT OR REPLACE INTO matches (pair_id, rows, cols, data) VALUES (?1, ?2, 2, ?3)",
+        params![id as i64, matches.len() as i64, blob::u32s(&ordered(matches))],
+    )?;
+    tx.execute(
+        "INSERT OR REPLACE INTO two_view_geometries (pair_id, rows, cols, data, config, F, E, H, qvec, tvec) \
+         VALUES (?1, ?2, 2, ?3, ?4, ?5, ?6, ?7, ?8, ?9)",
+        params![
+            id as i64,
+            geometry.inlier_matches.len() as i64,
+            blob::u32s(&ordered(&geometry.inlier_matches)),
+            geometry.config as i32,
+            matrix(geometry.f),
+            matrix(geometry.e),
+            matrix(geometry.h),
+            pose.map(|p| blob::f64s(&p.wxyz())),
+            pose.map(|p| blob::f64s(p.translation.as_slice())),
+        ],
+    )?;
+    tx.execute(
+        "INSERT OR REPLACE INTO revisit_pairs (pair_id, image_id1, image_id2, kind, method, roll_deg, \
+         num_matches, num_inliers) VALUES (?1, ?2, ?3, ?4, ?5, ?6, ?7, ?8)",
+        params![
+            id as i64,
+            record.image_id1.min(record.image_id2),
+            record.image_id1.max(record.image_id2),
+            record.kind,
+            record.method,
+            record.roll_deg,
+            record.num_matches as i64,
+            record.num_inliers as i64
+        ],
+    )?;
+    Ok(())
 }
 
 /// A row or match count as stored (SQLite integers are i64).

@@ -61,4 +61,34 @@ CREATE TABLE IF NOT EXISTS revisit_pairs (
     roll_deg INTEGER NOT NULL,
     num_matches INTEGER NOT NULL,
     num_inliers INTEGER NOT NULL);
+CREATE TABLE IF NOT EXISTS revisit_learned_features (
+    image_id INTEGER NOT NULL REFERENCES images(image_id) ON DELETE CASCADE,
+    method TEXT NOT NULL,
+    roll_deg INTEGER NOT NULL,
+    width INTEGER NOT NULL,
+    height INTEGER NOT NULL,
+    rows INTEGER NOT NULL,
+    dim INTEGER NOT NULL,
+    keypoints BLOB NOT NULL,
+    descriptors BLOB NOT NULL,
+    scores BLOB NOT NULL,
+    PRIMARY KEY (image_id, method, roll_deg));
+CREATE TABLE IF NOT EXISTS revisit_cross_keypoints (
+    image_id INTEGER NOT NULL REFERENCES images(image_id) ON DELETE CASCADE,
+    method TEXT NOT NULL,
+    roll_deg INTEGER NOT NULL,
+    learned_index INTEGER NOT NULL,
+    keypoint_index INTEGER NOT NULL,
+    PRIMARY KEY (image_id, method, roll_deg, learned_index));
+CREATE TABLE IF NOT EXISTS revisit_global_descriptors (
+    image_id INTEGER NOT NULL REFERENCES images(image_id) ON DELETE CASCADE,
+    method TEXT NOT NULL,
+    roll_deg INTEGER NOT NULL,
+    data BLOB NOT NULL,
+    PRIMARY KEY (image_id, method, roll_deg));
+CREATE TABLE IF NOT EXISTS revisit_vocabularies (
+    name TEXT PRIMARY KEY NOT NULL,
+    rows INTEGER NOT NULL,
+    dim INTEGER NOT NULL,
+    data BLOB NOT NULL);
 ";

@@ -296,9 +296,11 @@ impl Site {
         ]
     }
 
-    /// Albedo of the bare seabed (linear RGB) from the interpolated coarse fields.
-    fn seabed_albedo(&self, x: f32, y: f32, tx: usize, ty: usize, f: [f32; 6]) -> [f32; 3] {
-        let s = self.seed;
+    /// Albedo of the bare seabed (linear RGB) from the interpolated coarse
+    /// fields. `fine` seeds the centimetre-scale texture (grain, turf detail,
+    /// film, rubble, specks): sediment that moves between visits.
+    fn seabed_albedo(&self, x: f32, y: f32, tx: usize, ty: usize, f: [f32; 6], fine: u32) -> [f32; 3] {
+        let s = fine;
         let [hue, patch, warp, field, density, grain_low] = f;
         let mut c = lerp3([0.86, 0.79, 0.62], [0.66, 0.66, 0.62], hue);
         let grain_fine = fbm(x / 0.05, y / 0.05, 4, 0.75, s ^ 0x208);
@@ -310,7 +312,7 @@ impl Site {
             c = lerp3(c, turf, 0.85 * patch);
         }
         // Darker detritus collects in ripple troughs.
-        let angle = unit(noise::mix(s, 0x102)) * std::f32::consts::PI;
+        let angle = unit(noise::mix(self.seed, 0x102)) * std::f32::consts::PI;
         let (sin, cos) = angle.sin_cos();
         let phase = (x * cos + y * sin) * (std::f32::consts::TAU / 0.09) + warp;
         let wave = phase.sin() + 0.3 * (2.0 * phase + 0.7).sin();
@@ -351,8 +353,9 @@ impl Site {
         scale3(c, 0.92 + 0.05 * grain_px)
     }
 
-    /// Builds the shared seabed (heights and level-0 albedo).
-    pub fn build_seabed(&self, parallel: bool) -> Seabed {
+    /// Builds the seabed (heights and level-0 albedo); `fine` seeds its
+    /// centimetre-scale texture (the site's seed for the original sediment).
+    pub fn build_seabed(&self, fine: u32, parallel: bool) -> Seabed {
         let n = self.grid_n;
         let height_row = |j: usize, row: &mut [f32]| {
             let y = self.vertex_m(j) as f32;
@@ -390,7 +393,7 @@ impl Site {
         for_rows(&mut albedo, t, parallel, |ty, row| {
             let y = self.texel_centre_m(ty) as f32;
             for (tx, texel) in row.iter_mut().enumerate() {
-                *texel = to_u8(self.seabed_albedo(self.texel_centre_m(tx) as f32, y, tx, ty, field_at(tx, ty)));
+                *texel = to_u8(self.seabed_albedo(self.texel_centre_m(tx) as f32, y, tx, ty, field_at(tx, ty), fine));
             }
         });
         Seabed { heights, albedo }

@@ -85,7 +85,11 @@ pub struct Survey {
     /// Which scene slot a session renders with (sessions with identical
     /// structures share one).
     scene_slot: Vec<usize>,
-    seabed: OnceLock<Seabed>,
+    /// Seed of each session's centimetre-scale seabed texture: the site's for
+    /// every session unless the grade moves sediment between visits.
+    sediment: Vec<u32>,
+    /// The seabed of each scene slot.
+    seabeds: Vec<OnceLock<Seabed>>,
     scenes: Vec<OnceLock<SessionScene>>,
     /// (session, index within session) of each image, in image order.
     index: Vec<(usize, usize)>,
@@ -304,16 +308,26 @@ pub fn plan(options: &SynthOptions) -> Result<Survey, SynthError> {
     if count >= usize::from(u16::MAX) {
         return Err(SynthError::TooManyObjects(count));
     }
+    // Strong change and storms move the sediment: a new fine seabed texture per visit.
+    let moves_sediment = matches!(options.change, ChangeGrade::Strong | ChangeGrade::Storm);
+    let sediment: Vec<u32> = (0..options.sessions)
+        .map(|s| if moves_sediment && s > 0 { crate::noise::mix(site.seed, 0x5ED1_0000 + s as u32) } else { site.seed })
+        .collect();
     let mut scene_slot = Vec::with_capacity(objects.len());
     for (s, states) in objects.iter().enumerate() {
         let light = sessions.get(s).map(|p: &SessionPlan| p.appearance.light_dir);
         let slot = (0..s)
-            .find(|&p| objects.get(p) == Some(states) && sessions.get(p).map(|q| q.appearance.light_dir) == light)
+            .find(|&p| {
+                objects.get(p) == Some(states)
+                    && sessions.get(p).map(|q| q.appearance.light_dir) == light
+                    && sediment.get(p) == sediment.get(s)
+            })
             .map_or(s, |p| scene_slot.get(p).copied().unwrap_or(p));
         scene_slot.push(slot);
     }
     let scenes = (0..options.sessions).map(|_| OnceLock::new()).collect();
-    Ok(Survey { options: options.clone(), site, sessions, objects, scene_slot, seabed: OnceLock::new(), scenes, index })
+    let seabeds = (0..options.sessions).map(|_| OnceLock::new()).collect();
+    Ok(Survey { options: options.clone(), site, sessions, objects, scene_slot, sediment, seabeds, scenes, index })
 }
 
 impl Survey {
@@ -388,7 +402,12 @@ impl Survey {
         // Nested parallelism inside a lazily initialised cell could re-enter it
         // through rayon's work stealing: build sequentially inside the pool.
         let parallel = rayon::current_thread_index().is_none();
-        let seabed = self.seabed.get_or_init(|| self.site.build_seabed(parallel));
+        let fine = self.sediment.get(slot).copied().unwrap_or(self.site.seed);
+        let seabed = self
+            .seabeds
+            .get(slot)
+            .ok_or(SynthError::NoSuchSession { index: session, count })?
+            .get_or_init(|| self.site.build_seabed(fine, parallel));
         Ok(cell.get_or_init(|| SessionScene::build(&self.site, seabed, states, light_dir, parallel)))
     }
 

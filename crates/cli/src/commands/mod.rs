@@ -1,4 +1,6 @@
 pub mod bench;
 pub mod eval;
+pub mod match_pair;
+pub mod models;
 pub mod reconstruct;
 pub mod synth;

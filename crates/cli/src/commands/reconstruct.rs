@@ -8,22 +8,55 @@ use anyhow::{bail, Context, Result};
 use revisit_colmap::{Engine, MapperOptions, PlyColors};
 use revisit_core::Camera;
 use revisit_features::SiftOptions;
+use revisit_matching::RollSearch;
 use revisit_matching::{MatchOptions, PairOptions, VerifyOptions};
+use revisit_pipeline::cross::{self, CrossOptions, LearnedPairs, PlaceSource};
 use revisit_pipeline::export::{self, PairReport, SessionReport, REGISTERED_RULE};
 use revisit_pipeline::ingest::{self, SessionImages, SessionSpec};
 use revisit_pipeline::mapping::{self, MappingOutcome};
 use revisit_pipeline::{CrossStrategy, StageCounts};
+use revisit_places::CandidateOptions;
 use revisit_store::Store;
 use serde::Serialize;
 
+use crate::commands::models::{LearnedArg, ModelArgs};
 use crate::progress::Bars;
 
-#[derive(Clone, Copy, clap::ValueEnum)]
-enum CrossArg {
+#[derive(Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+pub enum CrossArg {
     /// Intra-session pairs only: visits are not linked.
     None,
     /// Every cross-session pair with SIFT: the classic joint baseline.
     Sift,
+    /// The learned matcher on every pair, within and across sessions (slowest).
+    LearnedAll,
+    /// The learned matcher on every cross-session pair; SIFT within sessions.
+    LearnedCross,
+    /// The learned matcher on place-recognition candidates only; SIFT within sessions.
+    Vpr,
+}
+
+impl CrossArg {
+    /// The name on the command line.
+    pub fn name(self) -> &'static str {
+        match self {
+            CrossArg::None => "none",
+            CrossArg::Sift => "sift",
+            CrossArg::LearnedAll => "learned-all",
+            CrossArg::LearnedCross => "learned-cross",
+            CrossArg::Vpr => "vpr",
+        }
+    }
+}
+
+#[derive(Clone, Copy, clap::ValueEnum)]
+enum RollSearchArg {
+    /// Decide the roll on the 256 strongest keypoints per image, then match once in full.
+    Probe,
+    /// Match in full at every roll (4x the matching cost).
+    Full,
+    /// Roll 0 only: for visits flown at the same heading.
+    Off,
 }
 
 #[derive(Clone, Copy, clap::ValueEnum)]
@@ -77,9 +110,46 @@ pub struct Args {
     /// Work folder for the store and every output (created if missing).
     #[arg(long, value_name = "WORK")]
     out: PathBuf,
-    /// How images of different sessions are paired for matching.
-    #[arg(long, value_enum, default_value = "sift")]
+    /// How images of different sessions are paired and matched.
+    #[arg(long, value_enum, default_value = "vpr")]
     cross: CrossArg,
+    /// The learned matcher for cross-session pairs.
+    #[arg(long, value_enum, default_value = "aliked-lightglue")]
+    learned: LearnedArg,
+    /// How the roll (0/90/180/270 degrees) of the second image of a
+    /// cross-session pair is chosen.
+    #[arg(long, value_enum, default_value = "probe")]
+    roll_search: RollSearchArg,
+    /// Place recognition: each image of a later session is paired with its N
+    /// nearest images of earlier sessions.
+    #[arg(long, default_value_t = 5, value_name = "N")]
+    vpr_top_k: usize,
+    /// Place recognition: only candidates closer than D (L2 distance between
+    /// normalised global descriptors, 0..2).
+    #[arg(long, value_name = "D")]
+    vpr_max_distance: Option<f32>,
+    /// Place recognition: a global-descriptor ONNX model (RGB image [1,3,H,W]
+    /// in 0..1 -> [1,D]), e.g. MegaLoc. Default: built-in VLAD over the
+    /// learned features, with a vocabulary learned from the survey.
+    #[arg(long, value_name = "ONNX")]
+    vpr_model: Option<PathBuf>,
+    /// A learned keypoint this close to a SIFT keypoint is matched as that
+    /// SIFT keypoint, which links cross-session matches to each session's tracks.
+    #[arg(long, default_value_t = 1.5, value_name = "PX")]
+    anchor_radius: f32,
+    /// Fewest verified inliers of a learned (cross-visit) pair.
+    #[arg(long, default_value_t = cross::CROSS_MIN_INLIERS, value_name = "N")]
+    cross_min_inliers: usize,
+    /// Largest epipolar error of a learned (cross-visit) inlier, pixels.
+    #[arg(long, default_value_t = 4.0, value_name = "PX")]
+    cross_max_error: f64,
+    /// A cross-visit pair is kept only if its roll's inliers are at least R
+    /// times those of the runner-up roll (chance matches find about as many
+    /// at every roll). 1 turns the check off.
+    #[arg(long, default_value_t = 1.5, value_name = "R")]
+    roll_margin: f32,
+    #[command(flatten)]
+    models: ModelArgs,
     /// Largest number of SIFT features per image (the strongest are kept).
     #[arg(long, default_value_t = 4096, value_name = "N")]
     max_features: usize,
@@ -126,10 +196,22 @@ struct Report {
     chosen_model: Option<PathBuf>,
     registered_rule: &'static str,
     pairs: BTreeMap<String, PairReport>,
+    /// Sessions with no image in the chosen model: no verified link to the others.
+    unlinked_sessions: Vec<String>,
+    /// Verified cross-session pairs by the roll of their second image (degrees).
+    rolls: BTreeMap<u32, usize>,
     features: StageCounts,
     matching: StageCounts,
+    cross: CrossReport,
     mapping: MappingReport,
     seconds: BTreeMap<&'static str, f64>,
+}
+
+#[derive(Default, Serialize)]
+struct CrossReport {
+    learned_features: StageCounts,
+    places: Option<StageCounts>,
+    learned_matching: StageCounts,
 }
 
 #[derive(Serialize)]
@@ -191,11 +273,46 @@ pub fn run(args: Args) -> Result<()> {
         loop_period: args.loop_period,
     };
     pair_options.check().context("--window/--loop-period")?;
-    let cross = match args.cross {
-        CrossArg::None => CrossStrategy::None,
-        CrossArg::Sift => CrossStrategy::Sift,
-    };
+    let sift_cross = if args.cross == CrossArg::Sift { CrossStrategy::Sift } else { CrossStrategy::None };
+    let learned_pairs = match args.cross {
+        CrossArg::None | CrossArg::Sift => None,
+        CrossArg::LearnedAll => Some(LearnedPairs::All),
+        CrossArg::LearnedCross => Some(LearnedPairs::Cross),
+        CrossArg::Vpr => Some(LearnedPairs::Places),
+    }
+    .filter(|_| sessions.len() >= 2);
     let verify_options = VerifyOptions { seed: args.seed, ..VerifyOptions::default() };
+    let cross_options = CrossOptions {
+        roll_search: match args.roll_search {
+            RollSearchArg::Probe => RollSearch::DEFAULT,
+            RollSearchArg::Full => RollSearch::Full,
+            RollSearchArg::Off => RollSearch::Off,
+        },
+        places: match &args.vpr_model {
+            Some(path) => PlaceSource::Onnx(path.clone()),
+            None => PlaceSource::Vlad { clusters: 64 },
+        },
+        candidates: CandidateOptions { top_k: args.vpr_top_k, max_distance: args.vpr_max_distance },
+        anchor_radius_px: args.anchor_radius,
+        verify: VerifyOptions {
+            min_inliers: args.cross_min_inliers,
+            max_error_px: args.cross_max_error,
+            ..verify_options.clone()
+        },
+        roll_margin: args.roll_margin,
+    };
+    cross_options.verify.check().context("--cross-min-inliers/--cross-max-error")?;
+    if !(args.roll_margin >= 1.0) {
+        bail!("--roll-margin must be at least 1, not {}", args.roll_margin);
+    }
+    if args.vpr_top_k == 0 {
+        bail!("--vpr-top-k must be at least 1");
+    }
+    // Open the learned models before any work, so a missing model fails fast.
+    let mut learned = match learned_pairs {
+        Some(_) => Some(args.models.open(args.learned.method())?),
+        None => None,
+    };
     let mapper_options = MapperOptions {
         engine: match args.mapper {
             MapperArg::Incremental => Engine::Incremental,
@@ -240,7 +357,10 @@ pub fn run(args: Args) -> Result<()> {
         Ok(revisit_pipeline::extract_features(&mut store, &sessions, &image_ids, &sift, args.max_image_size, &bars)?)
     })?;
     let matching = timed(&mut seconds, "matching", || {
-        let pairs = revisit_pipeline::plan_pairs(&sessions, &image_ids, cross, &pair_options);
+        let pairs = match learned_pairs {
+            Some(LearnedPairs::All) => Vec::new(),
+            _ => revisit_pipeline::plan_pairs(&sessions, &image_ids, sift_cross, &pair_options),
+        };
         let loaded = revisit_pipeline::load_features(&store, image_ids.values().copied())?;
         Ok(revisit_pipeline::match_pairs(
             &mut store,
@@ -251,6 +371,26 @@ pub fn run(args: Args) -> Result<()> {
             &bars,
         )?)
     })?;
+    let mut cross_report = CrossReport::default();
+    if let (Some(which), Some((runtime, learned))) = (learned_pairs, learned.as_mut()) {
+        let visits = cross::visits(&sessions, &image_ids);
+        let search = cross_options.roll_search;
+        cross_report.learned_features = timed(&mut seconds, "learned_features", || {
+            Ok(cross::extract_learned(&mut store, learned, &visits, search, &bars)?)
+        })?;
+        let places = match which {
+            LearnedPairs::Places => Some(timed(&mut seconds, "places", || {
+                let method = learned.method.name();
+                Ok(cross::describe_places(&mut store, method, &cross_options.places, runtime, &visits, search, &bars)?)
+            })?),
+            _ => None,
+        };
+        cross_report.places = places.as_ref().map(|p| p.counts);
+        cross_report.learned_matching = timed(&mut seconds, "learned_matching", || {
+            let pairs = cross::plan_learned_pairs(which, &visits, places.as_ref(), &cross_options.candidates);
+            Ok(cross::match_learned_pairs(&mut store, learned, &pairs, &cross_options, &bars)?)
+        })?;
+    }
     let records = store.pair_records()?;
     let inputs = {
         let inliers: usize = records.iter().map(|r| r.num_inliers).sum();
@@ -280,14 +420,17 @@ pub fn run(args: Args) -> Result<()> {
     })?;
 
     let report = Report {
+        unlinked_sessions: report_sessions_unlinked(&report_sessions),
         sessions: report_sessions,
         models: outcome.models.len(),
         model_sizes: outcome.models.iter().map(|m| m.registered_images.len()).collect(),
         chosen_model: chosen.and_then(|k| outcome.models.get(k)).map(|m| m.path.clone()),
         registered_rule: REGISTERED_RULE,
+        rolls: export::roll_histogram(&records),
         pairs: export::pair_reports(&records),
         features,
         matching,
+        cross: cross_report,
         mapping: MappingReport {
             reused: outcome.reused,
             extended: outcome.extended,
@@ -304,6 +447,10 @@ pub fn run(args: Args) -> Result<()> {
     Ok(())
 }
 
+fn report_sessions_unlinked(sessions: &BTreeMap<String, SessionReport>) -> Vec<String> {
+    sessions.iter().filter(|(_, s)| s.registered == 0).map(|(name, _)| name.clone()).collect()
+}
+
 fn print_summary(report: &Report, work: &Path) {
     println!("{:<16} {:>8} {:>11}", "session", "images", "registered");
     for (name, s) in &report.sessions {
@@ -312,7 +459,15 @@ fn print_summary(report: &Report, work: &Path) {
     for (kind, p) in &report.pairs {
         println!("{kind} pairs: {} tried, {} verified", p.tried, p.verified);
     }
+    if !report.rolls.is_empty() {
+        println!("cross pairs by roll: {:?}", report.rolls);
+    }
     println!("models: {} (sizes {:?})", report.models, report.model_sizes);
+    for name in &report.unlinked_sessions {
+        println!(
+            "warning: session {name} could not be linked to the others (kept as its own model if COLMAP made one)"
+        );
+    }
     if let Some(model) = &report.chosen_model {
         println!("model:  {}", model.display());
     }

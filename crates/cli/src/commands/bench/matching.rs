@@ -1,0 +1,473 @@
+//! `revisit bench matching`: the cross-visit strategies side by side on one
+//! synthetic dataset with exact truth, each through the real `revisit
+//! reconstruct`, plus place-recognition recall, roll-search agreement and
+//! cost, and learned extraction speed.
+//!
+//! Every strategy gets its own work folder (nothing is shared between them,
+//! so each pays its whole matching cost). The published figures beside them:
+//! for 2.5k images, exhaustive learned matching took 57.1 h, cross-visit-only
+//! 15.8 h and VPR-guided 2.5 h (4.4%), with 6.33 px against 3.65 px.
+
+use std::collections::{BTreeMap, BTreeSet};
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+use anyhow::{ensure, Context, Result};
+use clap::Parser;
+use revisit_core::{ImageId, Roll};
+use revisit_eval::{parse_points_csv, score, ScoreOptions};
+use revisit_matching::{RollSearch, VerifyOptions};
+use revisit_pipeline::learned::LearnedMethod;
+use revisit_places::{nearest, CandidateOptions};
+use revisit_store::Store;
+use serde::Serialize;
+
+use crate::commands::models::ModelArgs;
+use crate::commands::reconstruct;
+
+/// Image pairs of different visits overlapping at least this much (truth's
+/// `overlaps.csv`) count as places a query should find.
+const MIN_PLACE_OVERLAP: f64 = 0.3;
+/// The goal: `vpr` at most this share of `learned-all`'s matching time.
+const MAX_VPR_TIME_SHARE: f64 = 0.10;
+/// The goal: roll search at most this many times the cost of one match.
+const MAX_ROLL_COST: f64 = 1.5;
+/// The goal: the probe picks the full search's roll on this share of pairs.
+const MIN_ROLL_AGREEMENT: f64 = 0.95;
+
+#[derive(clap::Args)]
+pub struct Args {
+    /// A dataset made by `revisit synth`: sessions/NAME/*.png and truth/.
+    #[arg(long, value_name = "DIR")]
+    dataset: PathBuf,
+    /// Work folder: one reconstruction per strategy in WORK/STRATEGY
+    /// (default: DATASET/bench). Re-running reuses what is there.
+    #[arg(long, value_name = "WORK")]
+    work: Option<PathBuf>,
+    /// The strategies, in the order they run.
+    #[arg(long, value_delimiter = ',', default_value = "sift,learned-all,learned-cross,vpr")]
+    strategies: Vec<reconstruct::CrossArg>,
+    /// SIFT features per image (all strategies).
+    #[arg(long, default_value_t = 1024, value_name = "N")]
+    max_features: usize,
+    /// Place-recognition candidates per query image (`vpr`).
+    #[arg(long, default_value_t = 5, value_name = "N")]
+    vpr_top_k: usize,
+    /// Images timed for learned extraction (ALIKED and XFeat).
+    #[arg(long, default_value_t = 10, value_name = "N")]
+    extraction_images: usize,
+    /// Write every figure as JSON here too.
+    #[arg(long, value_name = "FILE")]
+    json: Option<PathBuf>,
+    #[command(flatten)]
+    models: ModelArgs,
+}
+
+/// `revisit reconstruct`'s arguments, parsed from words as the CLI does.
+#[derive(Parser)]
+struct ReconstructWords {
+    #[command(flatten)]
+    args: reconstruct::Args,
+}
+
+#[derive(Serialize)]
+struct StrategyFigures {
+    strategy: String,
+    /// SIFT matching + place recognition + learned matching (learned
+    /// extraction apart, in `learned_features_secs`).
+    matching_secs: f64,
+    learned_features_secs: f64,
+    pairs_matched: usize,
+    cross_pairs_matched: usize,
+    cross_pairs_verified: usize,
+    cross_inliers: usize,
+    sessions: usize,
+    sessions_in_chosen_model: usize,
+    models: usize,
+    median_cross_error_px: Option<f64>,
+    clicks_scored: usize,
+}
+
+#[derive(Serialize)]
+struct PlaceFigures {
+    queries: usize,
+    recall_at: BTreeMap<usize, f64>,
+    /// Cross-visit pairs sent to the learned matcher, of all cross-visit pairs.
+    cross_pairs_sent_share: f64,
+}
+
+#[derive(Serialize)]
+struct RollFigures {
+    pairs: usize,
+    /// Pairs the full search verifies (a roll to agree on).
+    verified_by_full: usize,
+    same_roll_share_of_verified: f64,
+    same_roll_share_of_all: f64,
+    probe_fell_back: usize,
+    one_match_secs: f64,
+    full_search_secs: f64,
+    probe_search_secs: f64,
+}
+
+#[derive(Serialize)]
+struct ExtractionFigures {
+    method: &'static str,
+    images: usize,
+    secs_per_image: f64,
+    target_secs: f64,
+}
+
+#[derive(Serialize)]
+struct Figures {
+    dataset: PathBuf,
+    strategies: Vec<StrategyFigures>,
+    places: Option<PlaceFigures>,
+    roll_search: Option<RollFigures>,
+    extraction: Vec<ExtractionFigures>,
+}
+
+pub fn run(args: Args) -> Result<()> {
+    let sessions_dir = args.dataset.join("sessions");
+    let truth_dir = args.dataset.join("truth");
+    let mut session_names: Vec<String> = std::fs::read_dir(&sessions_dir)
+        .with_context(|| format!("--dataset {}: no sessions/ folder", args.dataset.display()))?
+        .filter_map(|e| e.ok())
+        .filter(|e| e.path().is_dir())
+        .map(|e| e.file_name().to_string_lossy().into_owned())
+        .collect();
+    session_names.sort();
+    ensure!(session_names.len() >= 2, "--dataset {}: fewer than two sessions", args.dataset.display());
+    let work = args.work.clone().unwrap_or_else(|| args.dataset.join("bench"));
+
+    let mut figures = Figures {
+        dataset: args.dataset.clone(),
+        strategies: Vec::new(),
+        places: None,
+        roll_search: None,
+        extraction: Vec::new(),
+    };
+    for strategy in &args.strategies {
+        let name = strategy.name();
+        let out = work.join(name);
+        let mut words: Vec<String> = vec!["reconstruct".into()];
+        for session in &session_names {
+            words.push("--session".into());
+            words.push(format!("{session}={}", sessions_dir.join(session).display()));
+        }
+        words.extend(["--out".into(), out.display().to_string(), "--cross".into(), name.into()]);
+        words.extend(["--max-features".into(), args.max_features.to_string()]);
+        words.extend(["--vpr-top-k".into(), args.vpr_top_k.to_string()]);
+        words.extend(args.models.to_words());
+        println!("== {name}");
+        let parsed = ReconstructWords::try_parse_from(&words).context("building the reconstruct command")?;
+        reconstruct::run(parsed.args).with_context(|| format!("strategy {name}"))?;
+        figures.strategies.push(strategy_figures(name, &out, &truth_dir, session_names.len())?);
+        if *strategy == reconstruct::CrossArg::Vpr {
+            figures.places = Some(place_figures(&out, &truth_dir)?);
+            figures.roll_search = Some(roll_figures(&out, &args.models)?);
+        }
+    }
+    figures.extraction = extraction_figures(&sessions_dir, &session_names, args.extraction_images, &args.models)?;
+
+    print_figures(&figures);
+    if let Some(path) = &args.json {
+        std::fs::write(path, serde_json::to_string_pretty(&figures)?)
+            .with_context(|| format!("--json {}", path.display()))?;
+        println!("wrote: {}", path.display());
+    }
+    Ok(())
+}
+
+fn read_json(path: &Path) -> Result<serde_json::Value> {
+    let text = std::fs::read_to_string(path).with_context(|| path.display().to_string())?;
+    serde_json::from_str(&text).with_context(|| path.display().to_string())
+}
+
+fn strategy_figures(name: &str, out: &Path, truth: &Path, sessions: usize) -> Result<StrategyFigures> {
+    let report = read_json(&out.join("report.json"))?;
+    let secs = |stage: &str| report["seconds"][stage].as_f64().unwrap_or(0.0);
+    let store = Store::open_read_only(&out.join("database.db"))?;
+    let records = store.pair_records()?;
+    let cross: Vec<_> = records.iter().filter(|r| r.kind == "cross").collect();
+    let in_chosen = report["sessions"]
+        .as_object()
+        .map(|s| s.values().filter(|v| v["registered"].as_u64().unwrap_or(0) > 0).count())
+        .unwrap_or(0);
+    let (median, scored) = match report["chosen_model"].as_str() {
+        Some(model) => cross_error(Path::new(model), truth)?,
+        None => (None, 0),
+    };
+    Ok(StrategyFigures {
+        strategy: name.to_owned(),
+        matching_secs: secs("matching") + secs("places") + secs("learned_matching"),
+        learned_features_secs: secs("learned_features"),
+        pairs_matched: records.len(),
+        cross_pairs_matched: cross.len(),
+        cross_pairs_verified: cross.iter().filter(|r| r.num_inliers > 0).count(),
+        cross_inliers: cross.iter().map(|r| r.num_inliers).sum(),
+        sessions,
+        sessions_in_chosen_model: in_chosen,
+        models: report["models"].as_u64().unwrap_or(0) as usize,
+        median_cross_error_px: median,
+        clicks_scored: scored,
+    })
+}
+
+/// Median cross-session reprojection error of `model` over every click file
+/// of the truth (exact synthetic clicks: scored at the click's own depth).
+fn cross_error(model: &Path, truth: &Path) -> Result<(Option<f64>, usize)> {
+    let model = revisit_colmap::read_model(model)?;
+    let mut pairs = Vec::new();
+    for entry in std::fs::read_dir(truth).with_context(|| truth.display().to_string())? {
+        let path = entry?.path();
+        if path.file_name().and_then(|n| n.to_str()).is_some_and(|n| n.starts_with("evaluation_points_")) {
+            let text = std::fs::read_to_string(&path).with_context(|| path.display().to_string())?;
+            pairs.extend(parse_points_csv(&text, &path.display().to_string())?.pairs);
+        }
+    }
+    let options = ScoreOptions { radius_px: 8.0, at_click_depth: true, ..ScoreOptions::default() };
+    let scores = score(std::slice::from_ref(&model), &pairs, &options);
+    Ok((scores.overall.median_px, scores.overall.scored))
+}
+
+/// Truth overlaps between images of different sessions, by image name.
+fn read_overlaps(truth: &Path) -> Result<Vec<(String, String, f64)>> {
+    let path = truth.join("overlaps.csv");
+    let text = std::fs::read_to_string(&path).with_context(|| path.display().to_string())?;
+    let mut out = Vec::new();
+    for (line, row) in text.lines().enumerate().skip(1) {
+        let fields: Vec<&str> = row.split(',').collect();
+        let [a, b, overlap] = fields[..] else {
+            anyhow::bail!("{}: row {}: expected img0,img1,overlap", path.display(), line + 1);
+        };
+        let overlap: f64 = overlap.parse().with_context(|| format!("{}: row {}", path.display(), line + 1))?;
+        out.push((a.to_owned(), b.to_owned(), overlap));
+    }
+    Ok(out)
+}
+
+fn session_of(name: &str) -> &str {
+    name.split_once('/').map_or(name, |(s, _)| s)
+}
+
+/// Recall@k of the place candidates against the truth: a query (an image of
+/// a later visit with at least one truly overlapping image in earlier
+/// visits) is found at k if one of its k nearest is such an image.
+fn place_figures(out: &Path, truth: &Path) -> Result<PlaceFigures> {
+    let store = Store::open_read_only(&out.join("database.db"))?;
+    let ids = store.image_ids()?;
+    let names: BTreeMap<ImageId, &String> = ids.iter().map(|(n, id)| (*id, n)).collect();
+    let sessions: Vec<String> = store.sessions()?.into_iter().map(|s| s.name).collect();
+    let report = read_json(&out.join("report.json"))?;
+    // The descriptors `reconstruct` makes by default: VLAD over the default learned features.
+    let method = format!("vlad64-{}", LearnedMethod::default().name());
+    let descriptors = store.global_descriptors(&method)?;
+    ensure!(!descriptors.is_empty(), "{}: no {method} descriptors", out.display());
+    let mut truly: BTreeSet<(String, String)> = BTreeSet::new();
+    for (a, b, overlap) in read_overlaps(truth)? {
+        if overlap >= MIN_PLACE_OVERLAP {
+            truly.insert((a.clone(), b.clone()));
+            truly.insert((b, a));
+        }
+    }
+    let visit = |name: &str| sessions.iter().position(|s| s == session_of(name)).unwrap_or(usize::MAX);
+    let ks = [1, 5, 10];
+    let mut found = BTreeMap::<usize, usize>::new();
+    let mut queries = 0;
+    for (&query, query_name) in &names {
+        let v = visit(query_name);
+        if v == 0 || v == usize::MAX {
+            continue;
+        }
+        let earlier: Vec<ImageId> = names.iter().filter(|(_, n)| visit(n) < v).map(|(id, _)| *id).collect();
+        if !earlier.iter().any(|id| truly.contains(&((*query_name).clone(), names[id].clone()))) {
+            continue;
+        }
+        queries += 1;
+        let database: Vec<&[f32]> =
+            earlier.iter().filter_map(|id| descriptors.get(&(*id, 0)).map(Vec::as_slice)).collect();
+        let by_roll: Vec<(Roll, &[f32])> = Roll::ALL
+            .iter()
+            .filter_map(|r| descriptors.get(&(query, r.degrees())).map(|d| (*r, d.as_slice())))
+            .collect();
+        let ranked = nearest(&by_roll, &database, &CandidateOptions { top_k: 10, max_distance: None });
+        for k in ks {
+            let hit = ranked
+                .iter()
+                .take(k)
+                .any(|c| truly.contains(&((*query_name).clone(), names[&earlier[c.index]].clone())));
+            *found.entry(k).or_default() += usize::from(hit);
+        }
+    }
+    let counts: Vec<usize> =
+        sessions.iter().map(|s| report["sessions"][s]["images"].as_u64().unwrap_or(0) as usize).collect();
+    let all_cross: usize = (0..counts.len())
+        .flat_map(|i| (i + 1..counts.len()).map(move |j| (i, j)))
+        .map(|(i, j)| counts[i] * counts[j])
+        .sum();
+    let sent = report["pairs"]["cross"]["tried"].as_u64().unwrap_or(0) as f64;
+    Ok(PlaceFigures {
+        queries,
+        recall_at: ks
+            .iter()
+            .map(|&k| (k, found.get(&k).copied().unwrap_or(0) as f64 / queries.max(1) as f64))
+            .collect(),
+        cross_pairs_sent_share: sent / all_cross.max(1) as f64,
+    })
+}
+
+/// Probe against full roll search on the `vpr` run's cross-visit pairs, with
+/// the features it stored.
+fn roll_figures(out: &Path, models: &ModelArgs) -> Result<RollFigures> {
+    let method = LearnedMethod::default();
+    let (_, mut learned) = models.open(method)?;
+    let store = Store::open_read_only(&out.join("database.db"))?;
+    let pairs: Vec<_> = store.pair_records()?.into_iter().filter(|r| r.kind == "cross").collect();
+    let verify = VerifyOptions { min_inliers: revisit_pipeline::cross::CROSS_MIN_INLIERS, ..VerifyOptions::default() };
+    let margin = revisit_matching::roll::DEFAULT_ROLL_MARGIN;
+    let mut figures = RollFigures {
+        pairs: pairs.len(),
+        verified_by_full: 0,
+        same_roll_share_of_verified: 0.0,
+        same_roll_share_of_all: 0.0,
+        probe_fell_back: 0,
+        one_match_secs: 0.0,
+        full_search_secs: 0.0,
+        probe_search_secs: 0.0,
+    };
+    let (mut same_verified, mut same_all) = (0, 0);
+    let bar = crate::progress::bar(pairs.len() as u64, "roll search: probe vs full");
+    for pair in &pairs {
+        let a = store.read_learned_features(pair.image_id1, method.name(), 0)?;
+        let b_by_roll = Roll::ALL
+            .iter()
+            .map(|r| Ok((*r, store.read_learned_features(pair.image_id2, method.name(), r.degrees())?)))
+            .collect::<Result<Vec<_>>>()?;
+        let start = Instant::now();
+        let full = learned.match_pair(&a, &b_by_roll, RollSearch::Full, &verify)?;
+        figures.full_search_secs += start.elapsed().as_secs_f64();
+        let start = Instant::now();
+        let probe = learned.match_pair(&a, &b_by_roll, RollSearch::DEFAULT, &verify)?;
+        figures.probe_search_secs += start.elapsed().as_secs_f64();
+        let start = Instant::now();
+        let chosen = b_by_roll.iter().find(|(r, _)| *r == full.roll).map_or(&b_by_roll[0], |x| x);
+        learned.match_pair(&a, std::slice::from_ref(chosen), RollSearch::Off, &verify)?;
+        figures.one_match_secs += start.elapsed().as_secs_f64();
+        figures.probe_fell_back += usize::from(probe.fell_back);
+        let agree = probe.roll == full.roll;
+        same_all += usize::from(agree);
+        if !full.geometry.inlier_matches.is_empty() && full.roll_is_clear(margin) {
+            figures.verified_by_full += 1;
+            same_verified += usize::from(agree);
+        }
+        bar.inc(1);
+    }
+    bar.finish_and_clear();
+    let n = pairs.len().max(1) as f64;
+    figures.same_roll_share_of_verified = same_verified as f64 / figures.verified_by_full.max(1) as f64;
+    figures.same_roll_share_of_all = same_all as f64 / n;
+    figures.one_match_secs /= n;
+    figures.full_search_secs /= n;
+    figures.probe_search_secs /= n;
+    Ok(figures)
+}
+
+fn extraction_figures(
+    sessions_dir: &Path,
+    sessions: &[String],
+    count: usize,
+    models: &ModelArgs,
+) -> Result<Vec<ExtractionFigures>> {
+    let mut images = Vec::new();
+    for session in sessions {
+        let mut files: Vec<PathBuf> = std::fs::read_dir(sessions_dir.join(session))?
+            .filter_map(|e| e.ok().map(|e| e.path()))
+            .filter(|p| p.extension().is_some_and(|e| e == "png" || e == "jpg"))
+            .collect();
+        files.sort();
+        images.extend(files);
+    }
+    images.truncate(count.max(1));
+    let decoded = images
+        .iter()
+        .map(|p| Ok(image::open(p).with_context(|| p.display().to_string())?.to_rgb8()))
+        .collect::<Result<Vec<_>>>()?;
+    let mut out = Vec::new();
+    for (method, target_secs) in [(LearnedMethod::XfeatLighterglue, 0.2), (LearnedMethod::AlikedLightglue, 1.0)] {
+        let (_, mut learned) = models.open(method)?;
+        // One warm-up run: ONNX Runtime plans its kernels on the first call.
+        if let Some(first) = decoded.first() {
+            learned.extract(first, Roll::R0)?;
+        }
+        let start = Instant::now();
+        for image in &decoded {
+            learned.extract(image, Roll::R0)?;
+        }
+        let secs_per_image = start.elapsed().as_secs_f64() / decoded.len().max(1) as f64;
+        out.push(ExtractionFigures { method: method.name(), images: decoded.len(), secs_per_image, target_secs });
+    }
+    Ok(out)
+}
+
+fn print_figures(f: &Figures) {
+    println!();
+    println!(
+        "{:<14} {:>10} {:>9} {:>8} {:>10} {:>10} {:>12} {:>10}",
+        "strategy", "match s", "pairs", "cross", "verified", "inliers", "one model", "median px"
+    );
+    for s in &f.strategies {
+        println!(
+            "{:<14} {:>10.1} {:>9} {:>8} {:>10} {:>10} {:>12} {:>10}",
+            s.strategy,
+            s.matching_secs,
+            s.pairs_matched,
+            s.cross_pairs_matched,
+            s.cross_pairs_verified,
+            s.cross_inliers,
+            format!("{}/{}", s.sessions_in_chosen_model, s.sessions),
+            s.median_cross_error_px.map_or("-".to_owned(), |m| format!("{m:.2}")),
+        );
+    }
+    let secs = |name: &str| f.strategies.iter().find(|s| s.strategy == name).map(|s| s.matching_secs);
+    if let (Some(vpr), Some(all)) = (secs("vpr"), secs("learned-all")) {
+        println!(
+            "vpr / learned-all matching time: {:.1}% (goal <= {:.0}%; published 4.4% at 2.5k images)",
+            100.0 * vpr / all.max(1e-9),
+            100.0 * MAX_VPR_TIME_SHARE
+        );
+    }
+    if let Some(p) = &f.places {
+        let recall: Vec<String> = p.recall_at.iter().map(|(k, r)| format!("R@{k} {:.1}%", 100.0 * r)).collect();
+        println!(
+            "place recognition: {} queries, {}; {:.1}% of cross-visit pairs sent to the matcher",
+            p.queries,
+            recall.join(", "),
+            100.0 * p.cross_pairs_sent_share
+        );
+    }
+    if let Some(r) = &f.roll_search {
+        println!(
+            "roll search on {} pairs: probe picks the full search's roll on {:.1}% of the {} it verifies (goal >= {:.0}%), {:.1}% of all; fell back {} times",
+            r.pairs,
+            100.0 * r.same_roll_share_of_verified,
+            r.verified_by_full,
+            100.0 * MIN_ROLL_AGREEMENT,
+            100.0 * r.same_roll_share_of_all,
+            r.probe_fell_back
+        );
+        println!(
+            "roll search cost per pair: one match {:.2} s, full search {:.2} s ({:.2}x), probe {:.2} s ({:.2}x; goal <= {MAX_ROLL_COST}x)",
+            r.one_match_secs,
+            r.full_search_secs,
+            r.full_search_secs / r.one_match_secs.max(1e-9),
+            r.probe_search_secs,
+            r.probe_search_secs / r.one_match_secs.max(1e-9)
+        );
+    }
+    for e in &f.extraction {
+        println!(
+            "{} extraction at the dataset's size: {:.3} s per image over {} images (goal < {} s on 2 cores)",
+            e.method, e.secs_per_image, e.images, e.target_secs
+        );
+    }
+}

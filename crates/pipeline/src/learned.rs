@@ -1,0 +1,98 @@
+//! Learned matching methods by name: which model files they need, where those
+//! are found, and opening them on ONNX Runtime.
+
+use std::path::{Path, PathBuf};
+
+use image::RgbImage;
+use revisit_core::{LearnedFeatures, Roll};
+use revisit_features::learned::{Aliked, LearnedExtractor, XFeat, XFeatOptions};
+use revisit_matching::{match_with_rolls, CrossMatch, LightGlue, RollSearch, VerifyOptions};
+use revisit_onnx::{OnnxError, Runtime};
+use serde::{Deserialize, Serialize};
+
+/// The environment variable naming the folder of model files.
+pub const MODELS_ENV: &str = "REVISIT_MODELS";
+
+/// A learned detector + matcher pair.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash, PartialOrd, Ord, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum LearnedMethod {
+    /// ALIKED (1024 keypoints) + LightGlue: the default, the most robust across years.
+    #[default]
+    AlikedLightglue,
+    /// XFeat (up to 4096 keypoints) + LighterGlue: a faster detector.
+    XfeatLighterglue,
+}
+
+impl LearnedMethod {
+    /// The name used in options and in the store.
+    pub fn name(self) -> &'static str {
+        match self {
+            LearnedMethod::AlikedLightglue => "aliked-lightglue",
+            LearnedMethod::XfeatLighterglue => "xfeat-lighterglue",
+        }
+    }
+
+    /// The model files, (extractor, matcher), inside the models folder.
+    pub fn model_files(self) -> [&'static str; 2] {
+        match self {
+            LearnedMethod::AlikedLightglue => ["aliked_n16_480x640.onnx", "lightglue_aliked.onnx"],
+            LearnedMethod::XfeatLighterglue => ["xfeat_backbone.onnx", "lighterglue_xfeat.onnx"],
+        }
+    }
+}
+
+/// The models folder: `explicit`, else `$REVISIT_MODELS`, else `models/` in
+/// the current folder or any parent of the executable's folder.
+pub fn find_models(explicit: Option<&Path>) -> PathBuf {
+    if let Some(path) = explicit {
+        return path.to_path_buf();
+    }
+    if let Some(env) = std::env::var_os(MODELS_ENV) {
+        return PathBuf::from(env);
+    }
+    let mut roots: Vec<PathBuf> = std::env::current_dir().into_iter().collect();
+    if let Ok(exe) = std::env::current_exe() {
+        roots.extend(exe.ancestors().skip(1).map(Path::to_path_buf));
+    }
+    roots.iter().map(|r| r.join("models")).find(|m| m.is_dir()).unwrap_or_else(|| PathBuf::from("models"))
+}
+
+/// A learned method, opened: its extractor and its matcher.
+pub struct Learned {
+    pub method: LearnedMethod,
+    pub extractor: LearnedExtractor,
+    pub matcher: LightGlue,
+}
+
+impl Learned {
+    pub fn open(runtime: &Runtime, models: &Path, method: LearnedMethod) -> Result<Learned, OnnxError> {
+        let [extractor_file, matcher_file] = method.model_files();
+        let extractor = match method {
+            LearnedMethod::AlikedLightglue => {
+                LearnedExtractor::Aliked(Aliked::open(runtime, &models.join(extractor_file))?)
+            }
+            LearnedMethod::XfeatLighterglue => {
+                LearnedExtractor::XFeat(XFeat::open(runtime, &models.join(extractor_file), XFeatOptions::default())?)
+            }
+        };
+        let matcher = LightGlue::open(runtime, &models.join(matcher_file), extractor.descriptor_dim())?;
+        Ok(Learned { method, extractor, matcher })
+    }
+
+    /// Features of `image` rolled by `roll`.
+    pub fn extract(&mut self, image: &RgbImage, roll: Roll) -> Result<LearnedFeatures, OnnxError> {
+        self.extractor.extract(image, roll)
+    }
+
+    /// Matches `a` with the second image's features at the rolls `search` needs.
+    pub fn match_pair(
+        &mut self,
+        a: &LearnedFeatures,
+        b_by_roll: &[(Roll, LearnedFeatures)],
+        search: RollSearch,
+        verify: &VerifyOptions,
+    ) -> Result<CrossMatch, OnnxError> {
+        match_with_rolls(&mut self.matcher, a, b_by_roll, search, verify)
+    }
+}
