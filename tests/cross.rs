@@ -4,9 +4,137 @@
 //! matching with roll search can, and a fourth visit extends the model without
 //! redoing any finished work.
 
+#![allow(clippy::unwrap_used)] // test helpers panic on malformed reports
+
 mod common;
 
+use std::path::Path;
+
 use common::{read_json, run_err, run_ok};
+
+/// Images per visit of the strong-change reef (3 visits, then a 4th).
+const IMAGES: u64 = 12;
+
+/// The survey's calibrated camera as `--camera` takes it (every session of
+/// the synthetic reef has the same one).
+fn camera(reef: &Path) -> String {
+    let intrinsics = read_json(&reef.join("truth/intrinsics.json"));
+    let first = &intrinsics[0];
+    let params: Vec<String> = first["params"].as_array().unwrap().iter().map(|p| p.to_string()).collect();
+    format!("{}:{}", first["model"].as_str().unwrap(), params.join(","))
+}
+
+/// `revisit reconstruct` over `sessions` of the reef into `work`, with the
+/// calibrated camera and `extra` options.
+fn reconstruct(reef: &Path, sessions: &[&str], work: &Path, extra: &[&str]) -> serde_json::Value {
+    let mut args: Vec<String> =
+        vec!["reconstruct".into(), "--out".into(), work.display().to_string(), "--camera".into(), camera(reef)];
+    for name in sessions {
+        args.push("--session".into());
+        args.push(format!("{name}={}", reef.join("sessions").join(name).display()));
+    }
+    args.extend(["--max-features", "1024"].map(String::from));
+    args.extend(extra.iter().map(|s| s.to_string()));
+    run_ok(&args.iter().map(String::as_str).collect::<Vec<_>>());
+    read_json(&work.join("report.json"))
+}
+
+/// Median cross-session reprojection error (px) of `work`'s chosen model
+/// over the truth's clicks between `sessions`, or None if nothing scored.
+fn cross_error_px(reef: &Path, sessions: &[&str], work: &Path) -> Option<f64> {
+    let report = read_json(&work.join("report.json"));
+    let model = report["chosen_model"].as_str()?.to_owned();
+    let mut args = vec!["eval".to_owned(), "--model".to_owned(), model, "--points".to_owned()];
+    for (i, a) in sessions.iter().enumerate() {
+        for b in &sessions[i + 1..] {
+            args.push(reef.join("truth").join(format!("evaluation_points_{a}-{b}.csv")).display().to_string());
+        }
+    }
+    let json = work.join("eval.json");
+    args.extend(["--radius-px", "8", "--at-click-depth", "--json"].map(String::from));
+    args.push(json.display().to_string());
+    run_ok(&args.iter().map(String::as_str).collect::<Vec<_>>());
+    let scores = read_json(&json);
+    println!("{}: {} clicks scored, median {} px", work.display(), scores["scored"], scores["median_px"]);
+    scores["median_px"].as_f64()
+}
+
+/// Sessions with every image registered in the chosen model.
+fn fully_registered(report: &serde_json::Value) -> Vec<String> {
+    let sessions = report["sessions"].as_object().unwrap();
+    sessions.iter().filter(|(_, s)| s["registered"] == s["images"]).map(|(name, _)| name.clone()).collect()
+}
+
+#[test]
+fn strong_change_links_with_place_recognition_and_roll_search_not_with_sift() {
+    let dir = tempfile::tempdir().unwrap();
+    let reef = dir.path().join("reef");
+    let images = IMAGES.to_string();
+    let synth = ["synth", "--out", reef.to_str().unwrap(), "--sessions", "4", "--images-per-session", &images];
+    run_ok(&[&synth[..], &["--change", "strong", "--seed", "0"]].concat());
+    let three = ["s1", "s2", "s3"];
+
+    // The classic joint baseline: SIFT on every cross-visit pair.
+    let sift = dir.path().join("sift");
+    let report = reconstruct(&reef, &three, &sift, &["--cross", "sift"]);
+    let sift_error = cross_error_px(&reef, &three, &sift);
+    println!(
+        "sift: {} models, fully registered {:?}, error {sift_error:?}",
+        report["models"],
+        fully_registered(&report)
+    );
+    assert!(
+        fully_registered(&report).len() < 3 || sift_error.is_none_or(|e| e > 5.0),
+        "SIFT alone linked a strongly changed reef: {report:#}"
+    );
+
+    // The method: place recognition picks the pairs, ALIKED + LightGlue with roll search matches them.
+    let vpr = dir.path().join("vpr");
+    let report = reconstruct(&reef, &three, &vpr, &[]);
+    assert_eq!(report["models"], 1, "{report:#}");
+    assert_eq!(fully_registered(&report), three, "{report:#}");
+    let error = cross_error_px(&reef, &three, &vpr).expect("clicks scored");
+    assert!(error < 2.0, "median cross-session reprojection error {error} px");
+    let rolls = report["rolls"].as_object().unwrap();
+    assert!(rolls.keys().any(|r| r != "0"), "no pair needed a roll: {report:#}");
+    let cross_tried = report["pairs"]["cross"]["tried"].as_u64().unwrap();
+    assert!(cross_tried < 3 * IMAGES * IMAGES, "place recognition sent every pair: {report:#}");
+
+    // A fourth visit: only its own work is done, and the model is extended.
+    let before = report;
+    let all = ["s1", "s2", "s3", "s4"];
+    let report = reconstruct(&reef, &all, &vpr, &[]);
+    assert_eq!(report["features"]["done"], IMAGES, "{report:#}");
+    assert_eq!(report["features"]["reused"], 3 * IMAGES);
+    // Learned features: roll 0 for the first visit, four rolls for later ones.
+    assert_eq!(report["cross"]["learned_features"]["done"], 4 * IMAGES);
+    assert_eq!(report["cross"]["learned_features"]["reused"], IMAGES + 2 * 4 * IMAGES);
+    assert_eq!(report["cross"]["places"]["done"], 4 * IMAGES);
+    assert_eq!(report["cross"]["places"]["reused"], IMAGES + 2 * 4 * IMAGES);
+    assert_eq!(report["matching"]["reused"], before["pairs"]["intra"]["tried"]);
+    assert_eq!(report["cross"]["learned_matching"]["reused"], before["pairs"]["cross"]["tried"]);
+    assert_eq!(report["mapping"]["extended"], true, "{report:#}");
+    assert_eq!(report["models"], 1, "{report:#}");
+    assert_eq!(fully_registered(&report), all, "{report:#}");
+    let error = cross_error_px(&reef, &all, &vpr).expect("clicks scored");
+    assert!(error < 2.0, "median cross-session reprojection error {error} px after the fourth visit");
+
+    // Roll search is what links a visit flown the other way round (s3, about
+    // 180 degrees from s1): without it, the learned matcher finds no link.
+    let off = dir.path().join("roll-off");
+    let pair = ["s1", "s3"];
+    let report = reconstruct(&reef, &pair, &off, &["--roll-search", "off"]);
+    let off_error = cross_error_px(&reef, &pair, &off);
+    println!("roll search off: fully registered {:?}, error {off_error:?}", fully_registered(&report));
+    assert!(
+        fully_registered(&report).len() < 2 || off_error.is_none_or(|e| e > 5.0),
+        "s1 and s3 linked without roll search: {report:#}"
+    );
+    // A visit that could not be linked is named, never dropped silently.
+    if report["models"] != 1 {
+        assert!(!report["unlinked_sessions"].as_array().unwrap().is_empty(), "{report:#}");
+    }
+}
 
 #[test]
 fn cross_visit_bad_input_gets_one_line_errors() {

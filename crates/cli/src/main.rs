@@ -49,8 +49,14 @@ fn main() -> std::process::ExitCode {
     match result {
         Ok(()) => std::process::ExitCode::SUCCESS,
         Err(err) => {
-            // One line: the outermost context first, then its causes.
-            let chain: Vec<String> = err.chain().map(ToString::to_string).collect();
+            // One line: the outermost context first, then its causes (a cause
+            // that its error's own message already ends with is said once).
+            let mut chain: Vec<String> = Vec::new();
+            for cause in err.chain().map(ToString::to_string) {
+                if !chain.last().is_some_and(|last| last.ends_with(&cause)) {
+                    chain.push(cause);
+                }
+            }
             eprintln!("error: {}", chain.join(": "));
             std::process::ExitCode::FAILURE
         }

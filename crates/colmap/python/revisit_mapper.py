@@ -26,6 +26,8 @@ def main() -> int:
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--threads", type=int, default=-1)
     parser.add_argument("--min-model-size", type=int, default=10)
+    parser.add_argument("--fixed-intrinsics", action="store_true",
+                        help="calibrated cameras: keep focal length, principal point and distortion")
     args = parser.parse_args()
 
     try:
@@ -45,6 +47,10 @@ def main() -> int:
         options.min_model_size = args.min_model_size
         options.mapper.random_seed = args.seed
         options.mapper.num_threads = args.threads
+        if args.fixed_intrinsics:
+            options.ba_refine_focal_length = False
+            options.ba_refine_principal_point = False
+            options.ba_refine_extra_params = False
         raw = args.output / "raw"
         raw.mkdir()
         models = pycolmap.incremental_mapping(
@@ -57,6 +63,11 @@ def main() -> int:
             options.random_seed = args.seed
         if hasattr(options, "num_threads"):
             options.num_threads = args.threads
+        if args.fixed_intrinsics:
+            ba = options.mapper.bundle_adjustment
+            ba.refine_focal_length = False
+            ba.refine_principal_point = False
+            ba.refine_extra_params = False
         raw = args.output / "raw"
         raw.mkdir()
         models = pycolmap.global_mapping(args.database, args.image_path, raw, options)

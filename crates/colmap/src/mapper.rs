@@ -57,11 +57,14 @@ pub struct MapperOptions {
     pub threads: i32,
     /// Smallest model COLMAP keeps, in images. Default 10 (COLMAP's).
     pub min_model_size: usize,
+    /// Refine focal lengths and distortion in bundle adjustment. Default
+    /// true; false for calibrated cameras, whose intrinsics are held fixed.
+    pub refine_intrinsics: bool,
 }
 
 impl Default for MapperOptions {
     fn default() -> Self {
-        Self { engine: Engine::Incremental, seed: 0, threads: -1, min_model_size: 10 }
+        Self { engine: Engine::Incremental, seed: 0, threads: -1, min_model_size: 10, refine_intrinsics: true }
     }
 }
 
@@ -150,6 +153,9 @@ pub fn run_mapper(
         .arg(options.threads.to_string())
         .arg("--min-model-size")
         .arg(options.min_model_size.to_string());
+    if !options.refine_intrinsics {
+        command.arg("--fixed-intrinsics");
+    }
     if let (Some(input), Engine::Incremental) = (extend, options.engine) {
         command.arg("--input-path").arg(input);
     }

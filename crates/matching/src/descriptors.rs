@@ -78,7 +78,19 @@ pub fn match_descriptors(a: &Features, b: &Features, options: &MatchOptions) -> 
     if a.is_empty() || b.is_empty() || dim == 0 || dim != b.descriptor_dim {
         return Vec::new();
     }
-    let (da, db) = (normalised(a), normalised(b));
+    match_normalised(&normalised(a), &normalised(b), dim, options)
+}
+
+/// [`match_descriptors`] for float descriptors that are L2-normalised
+/// already (learned ones), `dim` values per row.
+pub fn match_unit_descriptors(a: &[f32], b: &[f32], dim: usize, options: &MatchOptions) -> Vec<[u32; 2]> {
+    if a.is_empty() || b.is_empty() || dim == 0 || !a.len().is_multiple_of(dim) || !b.len().is_multiple_of(dim) {
+        return Vec::new();
+    }
+    match_normalised(a, b, dim, options)
+}
+
+fn match_normalised(da: &[f32], db: &[f32], dim: usize, options: &MatchOptions) -> Vec<[u32; 2]> {
     let (na, nb) = (da.len() / dim, db.len() / dim);
     let mut forward = vec![BestTwo::NONE; na];
     let mut backward = vec![BestTwo::NONE; nb];
@@ -87,7 +99,7 @@ pub fn match_descriptors(a: &Features, b: &Features, options: &MatchOptions) -> 
         let rows = BLOCK_ROWS.min(na - block_start);
         let block = &da[block_start * dim..(block_start + rows) * dim];
         // similarity (rows x nb, row-major) = block (rows x dim) * db^T (dim x nb).
-        matrixmultiply_sgemm(block, &db, &mut similarity[..rows * nb], rows, dim, nb);
+        matrixmultiply_sgemm(block, db, &mut similarity[..rows * nb], rows, dim, nb);
         for (r, row) in similarity[..rows * nb].chunks_exact(nb).enumerate() {
             let i = block_start + r;
             let mut best = BestTwo::NONE;

@@ -12,7 +12,7 @@ pub mod roll;
 mod verify;
 
 pub use anchor::anchor_keypoints;
-pub use descriptors::{match_descriptors, MatchOptions};
+pub use descriptors::{match_descriptors, match_unit_descriptors, MatchOptions};
 pub use lightglue::LightGlue;
 pub use pairs::{exhaustive_pairs, intra_session_pairs, PairOptions};
 pub use roll::{match_with_rolls, CrossMatch, RollSearch};

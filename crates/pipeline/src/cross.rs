@@ -17,7 +17,7 @@ use revisit_store::{CrossKey, CrossSide, PairRecord, Store};
 use serde::Serialize;
 
 use crate::learned::Learned;
-use crate::{PipelineError, Progress, StageCounts};
+use crate::{LearnedKeypoints, PipelineError, Progress, StageCounts};
 
 /// One visit's images in time order, with their store ids and files.
 #[derive(Clone, Debug, PartialEq, Eq)]
@@ -153,6 +153,36 @@ pub fn extract_learned(
     }
     progress.finish();
     Ok(counts)
+}
+
+/// Registers every image's roll-0 learned keypoints in its keypoint list
+/// (where not done yet) and returns them, for matching within visits
+/// alongside SIFT (see [`crate::match_pairs`]).
+pub fn register_learned_keypoints(
+    store: &mut Store,
+    method: &str,
+    visits: &[Visit],
+) -> Result<LearnedKeypoints, PipelineError> {
+    let mut out = LearnedKeypoints { method: method.to_owned(), images: Default::default() };
+    for (id, _) in visits.iter().flat_map(|v| &v.images) {
+        let features = store.read_learned_features(*id, method, 0)?;
+        let mut indices = store.learned_keypoint_indices(*id, method, 0)?;
+        if indices.len() < features.len() {
+            let side = CrossSide { image_id: *id, method, roll_deg: 0, positions: &features.keypoints };
+            store.register_learned_keypoints(side)?;
+            indices = store.learned_keypoint_indices(*id, method, 0)?;
+        }
+        let by_learned: Vec<u32> = (0..features.len() as u32).filter_map(|l| indices.get(&l).copied()).collect();
+        if by_learned.len() != features.len() {
+            return Err(PipelineError::Store(revisit_store::StoreError::Corrupt {
+                path: store.path().to_path_buf(),
+                what: format!("learned keypoints of image {id}"),
+                reason: "not all registered".to_owned(),
+            }));
+        }
+        out.images.insert(*id, (features, by_learned));
+    }
+    Ok(out)
 }
 
 /// The global descriptors of place recognition, computed where missing.
@@ -346,8 +376,9 @@ pub fn match_learned_pairs(
         let b = b_by_roll.iter().find(|(r, _)| *r == found.roll).map(|(_, f)| f).unwrap_or(&b_by_roll[0].1);
         let positions_a: Vec<[f32; 2]> = a.keypoints.clone();
         let positions_b: Vec<[f32; 2]> = unrolled_keypoints(b, found.roll).iter().map(|k| [k.x, k.y]).collect();
-        let own_a = store.read_features(pair.image_id1)?.keypoints;
-        let own_b = store.read_features(pair.image_id2)?.keypoints;
+        // Every keypoint an image holds: SIFT and its registered learned ones.
+        let own_a = store.read_keypoints(pair.image_id1)?;
+        let own_b = store.read_keypoints(pair.image_id2)?;
         let anchors_a = anchor_keypoints(&own_a, &positions_a, options.anchor_radius_px);
         let anchors_b = anchor_keypoints(&own_b, &positions_b, options.anchor_radius_px);
         let key = |anchors: &[Option<u32>], l: u32| anchors[l as usize].map_or(CrossKey::Learned(l), CrossKey::Own);

@@ -17,7 +17,9 @@ mod stages;
 
 use std::path::PathBuf;
 
-pub use stages::{extract_features, load_features, match_pairs, plan_pairs, CrossStrategy, PlannedPair, StageCounts};
+pub use stages::{
+    extract_features, load_features, match_pairs, plan_pairs, CrossStrategy, LearnedKeypoints, PlannedPair, StageCounts,
+};
 
 #[derive(Debug, thiserror::Error)]
 pub enum PipelineError {

@@ -3,9 +3,11 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::mpsc;
 
 use rayon::prelude::*;
-use revisit_core::{pair_id, Features, ImageId};
+use revisit_core::{pair_id, Features, ImageId, Keypoint, LearnedFeatures};
 use revisit_features::SiftOptions;
-use revisit_matching::{intra_session_pairs, match_descriptors, verify, MatchOptions, PairOptions, VerifyOptions};
+use revisit_matching::{
+    intra_session_pairs, match_descriptors, match_unit_descriptors, verify, MatchOptions, PairOptions, VerifyOptions,
+};
 use revisit_store::{PairRecord, Store};
 use serde::Serialize;
 
@@ -199,18 +201,61 @@ pub fn load_features(
     image_ids.into_iter().map(|id| Ok((id, store.read_features(id)?))).collect()
 }
 
-/// Matches and verifies every planned pair not yet in the store.
+/// Learned keypoints that images hold in their keypoint lists (after their
+/// SIFT keypoints), matched within visits alongside SIFT so that the tracks
+/// of cross-visit matches continue inside each visit.
+#[derive(Clone, Debug, Default)]
+pub struct LearnedKeypoints {
+    /// The learned method's name.
+    pub method: String,
+    /// Per image: its learned features at roll 0 and the keypoint index of each.
+    pub images: HashMap<ImageId, (LearnedFeatures, Vec<u32>)>,
+}
+
+impl LearnedKeypoints {
+    /// SIFT keypoints then the learned ones, at their keypoint indices.
+    fn all_keypoints(&self, image_id: ImageId, own: &[Keypoint]) -> Vec<Keypoint> {
+        let mut all = own.to_vec();
+        if let Some((features, indices)) = self.images.get(&image_id) {
+            let len = indices.iter().map(|&i| i as usize + 1).max().unwrap_or(0).max(all.len());
+            all.resize(len, Keypoint { x: 0.0, y: 0.0, scale: 1.0, orientation: 0.0 });
+            for (&[x, y], &index) in features.keypoints.iter().zip(indices) {
+                all[index as usize] = Keypoint { x, y, scale: 1.0, orientation: 0.0 };
+            }
+        }
+        all
+    }
+
+    /// Nearest-neighbour matches of the learned descriptors of two images, by keypoint index.
+    fn matches(&self, a: ImageId, b: ImageId, options: &MatchOptions) -> Vec<[u32; 2]> {
+        let (Some((fa, ia)), Some((fb, ib))) = (self.images.get(&a), self.images.get(&b)) else {
+            return Vec::new();
+        };
+        match_unit_descriptors(&fa.descriptors, &fb.descriptors, fa.descriptor_dim, options)
+            .into_iter()
+            .filter_map(|[i, j]| Some([*ia.get(i as usize)?, *ib.get(j as usize)?]))
+            .collect()
+    }
+}
+
+/// Matches and verifies every planned pair not yet in the store (with
+/// `learned`, SIFT and learned matches together, verified as one set).
 pub fn match_pairs(
     store: &mut Store,
     pairs: &[PlannedPair],
     features: &HashMap<ImageId, Features>,
+    learned: Option<&LearnedKeypoints>,
     match_options: &MatchOptions,
     verify_options: &VerifyOptions,
     progress: &dyn Progress,
 ) -> Result<StageCounts, PipelineError> {
-    let finished = store.matched_pairs()?;
+    let method = match learned {
+        Some(l) => format!("sift+{}", l.method),
+        None => "sift".to_owned(),
+    };
+    let stored = store.pair_methods()?;
     let todo: Vec<PlannedPair> =
-        pairs.iter().filter(|p| !finished.contains(&pair_id(p.image_id1, p.image_id2))).copied().collect();
+        pairs.iter().filter(|p| stored.get(&pair_id(p.image_id1, p.image_id2)) != Some(&method)).copied().collect();
     let counts = StageCounts { done: todo.len(), reused: pairs.len() - todo.len() };
     tracing::info!(new = counts.done, reused = counts.reused, "matching");
     progress.start("matching", todo.len() as u64);
@@ -220,13 +265,21 @@ pub fn match_pairs(
         |pair| -> Result<_, PipelineError> {
             let a = features.get(&pair.image_id1).unwrap_or(&empty);
             let b = features.get(&pair.image_id2).unwrap_or(&empty);
-            let matches = match_descriptors(a, b, match_options);
-            let geometry = verify(&a.keypoints, &b.keypoints, &matches, verify_options);
+            let mut matches = match_descriptors(a, b, match_options);
+            let geometry = match learned {
+                Some(learned) => {
+                    matches.extend(learned.matches(pair.image_id1, pair.image_id2, match_options));
+                    let all_a = learned.all_keypoints(pair.image_id1, &a.keypoints);
+                    let all_b = learned.all_keypoints(pair.image_id2, &b.keypoints);
+                    verify(&all_a, &all_b, &matches, verify_options)
+                }
+                None => verify(&a.keypoints, &b.keypoints, &matches, verify_options),
+            };
             let record = PairRecord {
                 image_id1: pair.image_id1,
                 image_id2: pair.image_id2,
                 kind: if pair.cross { "cross" } else { "intra" }.to_owned(),
-                method: "sift".to_owned(),
+                method: method.clone(),
                 roll_deg: 0,
                 num_matches: matches.len(),
                 num_inliers: geometry.inlier_matches.len(),

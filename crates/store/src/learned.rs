@@ -122,7 +122,7 @@ impl Store {
         let path = self.path.clone();
         let sql = |source| StoreError::Sqlite { path: path.clone(), source };
         let tx = self.conn.transaction().map_err(sql)?;
-        let mut resolved: [HashMap<CrossKey, u32>; 2] = [HashMap::new(), HashMap::new()];
+        let mut resolved: [HashMap<u32, u32>; 2] = [HashMap::new(), HashMap::new()];
         for (s, side) in sides.iter().enumerate() {
             let keys: BTreeSet<u32> = matches
                 .iter()
@@ -132,70 +132,50 @@ impl Store {
                     CrossKey::Own(_) => None,
                 })
                 .collect();
-            let known: HashMap<u32, u32> = {
-                let mut stmt = tx
-                    .prepare(
-                        "SELECT learned_index, keypoint_index FROM revisit_cross_keypoints \
-                         WHERE image_id = ?1 AND method = ?2 AND roll_deg = ?3",
-                    )
-                    .map_err(sql)?;
-                let rows = stmt
-                    .query_map(params![side.image_id, side.method, side.roll_deg], |r| Ok((r.get(0)?, r.get(1)?)))
-                    .map_err(sql)?;
-                rows.collect::<std::result::Result<_, _>>().map_err(sql)?
-            };
-            let (rows, mut data): (i64, Vec<u8>) = tx
-                .query_row("SELECT rows, data FROM keypoints WHERE image_id = ?1 AND cols = 6", [side.image_id], |r| {
-                    Ok((r.get(0)?, r.get::<_, Option<Vec<u8>>>(1)?.unwrap_or_default()))
-                })
-                .optional()
-                .map_err(sql)?
-                .ok_or_else(|| StoreError::UnknownImage { path: path.clone(), image_id: side.image_id })?;
-            let mut next = u32::try_from(rows).unwrap_or(0);
-            let mut appended = 0;
-            for learned in keys {
-                let index = match known.get(&learned) {
-                    Some(&index) => index,
-                    None => {
-                        let Some(&[x, y]) = side.positions.get(learned as usize) else {
-                            return Err(StoreError::Corrupt {
-                                path: path.clone(),
-                                what: format!("cross-visit match of image {}", side.image_id),
-                                reason: format!("learned keypoint {learned} does not exist"),
-                            });
-                        };
-                        let keypoint = Keypoint { x, y, scale: 1.0, orientation: 0.0 };
-                        data.extend(blob::f32s(&keypoint.to_affine()));
-                        tx.execute(
-                            "INSERT INTO revisit_cross_keypoints (image_id, method, roll_deg, learned_index, \
-                             keypoint_index) VALUES (?1, ?2, ?3, ?4, ?5)",
-                            params![side.image_id, side.method, side.roll_deg, learned, next],
-                        )
-                        .map_err(sql)?;
-                        next += 1;
-                        appended += 1;
-                        next - 1
-                    }
-                };
-                resolved[s].insert(CrossKey::Learned(learned), index);
-            }
-            if appended > 0 {
-                tx.execute(
-                    "UPDATE keypoints SET rows = ?1, data = ?2 WHERE image_id = ?3",
-                    params![next, data, side.image_id],
-                )
-                .map_err(sql)?;
-            }
+            resolved[s] = keypoint_indices(&tx, &path, side, &keys)?;
         }
         let index = |s: usize, key: CrossKey| match key {
             CrossKey::Own(i) => i,
-            CrossKey::Learned(_) => resolved[s][&key],
+            CrossKey::Learned(l) => resolved[s][&l],
         };
         let translate =
             |m: &[[CrossKey; 2]]| -> Vec<[u32; 2]> { m.iter().map(|&[a, b]| [index(0, a), index(1, b)]).collect() };
         let geometry = TwoViewGeometry { inlier_matches: translate(inliers), ..geometry.clone() };
         insert_pair(&tx, record, &translate(matches), &geometry).map_err(sql)?;
         tx.commit().map_err(sql)
+    }
+
+    /// Adds every learned keypoint of `side` to the image's keypoint list (the
+    /// ones not there yet), so that matches within a visit can use them and
+    /// chain with the cross-visit matches that use them. One transaction.
+    pub fn register_learned_keypoints(&mut self, side: CrossSide<'_>) -> Result<()> {
+        let path = self.path.clone();
+        let sql = |source| StoreError::Sqlite { path: path.clone(), source };
+        let tx = self.conn.transaction().map_err(sql)?;
+        let all: BTreeSet<u32> = (0..side.positions.len() as u32).collect();
+        keypoint_indices(&tx, &path, &side, &all)?;
+        tx.commit().map_err(sql)
+    }
+
+    /// The keypoint index of every registered learned keypoint of (image,
+    /// method, roll), by learned index.
+    pub fn learned_keypoint_indices(
+        &self,
+        image_id: ImageId,
+        method: &str,
+        roll_deg: u32,
+    ) -> Result<HashMap<u32, u32>> {
+        let mut stmt = self
+            .conn
+            .prepare(
+                "SELECT learned_index, keypoint_index FROM revisit_cross_keypoints \
+                 WHERE image_id = ?1 AND method = ?2 AND roll_deg = ?3",
+            )
+            .map_err(|e| self.sql(e))?;
+        let rows = stmt
+            .query_map(params![image_id, method, roll_deg], |r| Ok((r.get(0)?, r.get(1)?)))
+            .map_err(|e| self.sql(e))?;
+        rows.collect::<std::result::Result<_, _>>().map_err(|e| self.sql(e))
     }
 
     /// Global descriptors of `method`, by (image, roll in degrees).
@@ -260,4 +240,69 @@ impl Store {
             .map_err(|e| self.sql(e))?;
         Ok(())
     }
+}
+
+/// The keypoint index of each learned keypoint in `keys` of `side`, appending
+/// to the image's keypoint list (in learned order) those it does not hold yet.
+fn keypoint_indices(
+    tx: &rusqlite::Transaction<'_>,
+    path: &std::path::Path,
+    side: &CrossSide<'_>,
+    keys: &BTreeSet<u32>,
+) -> Result<HashMap<u32, u32>> {
+    let sql = |source| StoreError::Sqlite { path: path.to_path_buf(), source };
+    let mut known: HashMap<u32, u32> = {
+        let mut stmt = tx
+            .prepare(
+                "SELECT learned_index, keypoint_index FROM revisit_cross_keypoints \
+                 WHERE image_id = ?1 AND method = ?2 AND roll_deg = ?3",
+            )
+            .map_err(sql)?;
+        let rows = stmt
+            .query_map(params![side.image_id, side.method, side.roll_deg], |r| Ok((r.get(0)?, r.get(1)?)))
+            .map_err(sql)?;
+        rows.collect::<std::result::Result<_, _>>().map_err(sql)?
+    };
+    let (rows, mut data): (i64, Vec<u8>) = tx
+        .query_row("SELECT rows, data FROM keypoints WHERE image_id = ?1 AND cols = 6", [side.image_id], |r| {
+            Ok((r.get(0)?, r.get::<_, Option<Vec<u8>>>(1)?.unwrap_or_default()))
+        })
+        .optional()
+        .map_err(sql)?
+        .ok_or_else(|| StoreError::UnknownImage { path: path.to_path_buf(), image_id: side.image_id })?;
+    let mut next = u32::try_from(rows).unwrap_or(0);
+    let mut appended = false;
+    let mut out = HashMap::with_capacity(keys.len());
+    for &learned in keys {
+        let index = match known.get(&learned) {
+            Some(&index) => index,
+            None => {
+                let Some(&[x, y]) = side.positions.get(learned as usize) else {
+                    return Err(StoreError::Corrupt {
+                        path: path.to_path_buf(),
+                        what: format!("learned match of image {}", side.image_id),
+                        reason: format!("learned keypoint {learned} does not exist"),
+                    });
+                };
+                let keypoint = Keypoint { x, y, scale: 1.0, orientation: 0.0 };
+                data.extend(blob::f32s(&keypoint.to_affine()));
+                tx.execute(
+                    "INSERT INTO revisit_cross_keypoints (image_id, method, roll_deg, learned_index, \
+                     keypoint_index) VALUES (?1, ?2, ?3, ?4, ?5)",
+                    params![side.image_id, side.method, side.roll_deg, learned, next],
+                )
+                .map_err(sql)?;
+                known.insert(learned, next);
+                appended = true;
+                next += 1;
+                next - 1
+            }
+        };
+        out.insert(learned, index);
+    }
+    if appended {
+        tx.execute("UPDATE keypoints SET rows = ?1, data = ?2 WHERE image_id = ?3", params![next, data, side.image_id])
+            .map_err(sql)?;
+    }
+    Ok(out)
 }

@@ -135,8 +135,15 @@ impl Store {
     }
 
     /// Adds a session with its camera, or returns the stored one if it was
-    /// added before from the same source.
-    pub fn ensure_session(&mut self, name: &str, source: &str, camera: &Camera) -> Result<SessionRecord> {
+    /// added before from the same source. `calibrated` marks the camera's
+    /// parameters as known (COLMAP's `prior_focal_length`).
+    pub fn ensure_session(
+        &mut self,
+        name: &str,
+        source: &str,
+        camera: &Camera,
+        calibrated: bool,
+    ) -> Result<SessionRecord> {
         if let Some(stored) = self.sessions()?.into_iter().find(|s| s.name == name) {
             if stored.source != source {
                 return Err(StoreError::SessionSourceMismatch {
@@ -152,8 +159,8 @@ impl Store {
         let sql = |source| StoreError::Sqlite { path: path.clone(), source };
         let tx = self.conn.transaction().map_err(sql)?;
         tx.execute(
-            "INSERT INTO cameras (model, width, height, params, prior_focal_length) VALUES (?1, ?2, ?3, ?4, 0)",
-            params![camera.model.id(), camera.width, camera.height, blob::f64s(&camera.params)],
+            "INSERT INTO cameras (model, width, height, params, prior_focal_length) VALUES (?1, ?2, ?3, ?4, ?5)",
+            params![camera.model.id(), camera.width, camera.height, blob::f64s(&camera.params), calibrated],
         )
         .map_err(sql)?;
         let camera_id = CameraId::try_from(tx.last_insert_rowid()).unwrap_or(0);
@@ -269,6 +276,35 @@ impl Store {
             .map(|row| Keypoint::from_columns(row).ok_or_else(|| self.corrupt(what(), format!("{cols} columns"))))
             .collect::<Result<Vec<_>>>()?;
         Ok(Features { keypoints, descriptors, descriptor_dim: dcols })
+    }
+
+    /// Every keypoint of the image: its own (SIFT) ones, then the learned
+    /// keypoints registered after them.
+    pub fn read_keypoints(&self, image_id: ImageId) -> Result<Vec<Keypoint>> {
+        let what = || format!("keypoints of image {image_id}");
+        let row: Option<(usize, usize, Vec<u8>)> = self
+            .conn
+            .query_row("SELECT rows, cols, data FROM keypoints WHERE image_id = ?1", [image_id], |r| {
+                Ok((count(r.get(0)?), count(r.get(1)?), r.get::<_, Option<Vec<u8>>>(2)?.unwrap_or_default()))
+            })
+            .optional()
+            .map_err(|e| self.sql(e))?;
+        let Some((rows, cols, data)) = row else {
+            return Err(StoreError::UnknownImage { path: self.path.clone(), image_id });
+        };
+        let values = blob::to_f32s(&data).filter(|v| v.len() == rows * cols && cols > 0);
+        let values = values.ok_or_else(|| self.corrupt(what(), "row/column counts disagree with the blob"))?;
+        values
+            .chunks_exact(cols)
+            .map(|row| Keypoint::from_columns(row).ok_or_else(|| self.corrupt(what(), format!("{cols} columns"))))
+            .collect()
+    }
+
+    /// The method each stored pair was matched with, by COLMAP pair id.
+    pub fn pair_methods(&self) -> Result<BTreeMap<u64, String>> {
+        let mut stmt = self.conn.prepare("SELECT pair_id, method FROM revisit_pairs").map_err(|e| self.sql(e))?;
+        let rows = stmt.query_map([], |r| Ok((r.get::<_, i64>(0)? as u64, r.get(1)?))).map_err(|e| self.sql(e))?;
+        rows.collect::<std::result::Result<_, _>>().map_err(|e| self.sql(e))
     }
 
     /// Pairs already matched and verified (COLMAP pair ids).

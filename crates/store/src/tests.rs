@@ -15,7 +15,7 @@ fn features(n: usize, seed: u8) -> Features {
 fn store_with_images() -> (tempfile::TempDir, Store, BTreeMap<String, ImageId>) {
     let dir = tempfile::tempdir().unwrap();
     let mut store = Store::open(&dir.path().join("database.db")).unwrap();
-    let session = store.ensure_session("2019", "/data/2019", &Camera::default_for_size(0, 640, 480)).unwrap();
+    let session = store.ensure_session("2019", "/data/2019", &Camera::default_for_size(0, 640, 480), false).unwrap();
     let names = vec!["2019/a.png".to_string(), "2019/b.png".to_string()];
     let ids = store.ensure_images(&names, session.camera_id).unwrap();
     (dir, store, ids)
@@ -42,7 +42,7 @@ fn reopening_keeps_everything_and_adds_nothing_twice() {
     store.write_features(ids["2019/a.png"], &features(3, 1)).unwrap();
     drop(store);
     let mut store = Store::open(&dir.path().join("database.db")).unwrap();
-    let session = store.ensure_session("2019", "/data/2019", &Camera::default_for_size(0, 640, 480)).unwrap();
+    let session = store.ensure_session("2019", "/data/2019", &Camera::default_for_size(0, 640, 480), false).unwrap();
     let again = store.ensure_images(&["2019/a.png".to_string()], session.camera_id).unwrap();
     assert_eq!(again, ids);
     assert_eq!(store.sessions().unwrap().len(), 1);
@@ -52,7 +52,7 @@ fn reopening_keeps_everything_and_adds_nothing_twice() {
 #[test]
 fn a_session_cannot_change_its_source() {
     let (_dir, mut store, _) = store_with_images();
-    let err = store.ensure_session("2019", "/elsewhere", &Camera::default_for_size(0, 640, 480)).unwrap_err();
+    let err = store.ensure_session("2019", "/elsewhere", &Camera::default_for_size(0, 640, 480), false).unwrap_err();
     assert!(err.to_string().contains("session \"2019\" was added from /data/2019, not /elsewhere"), "{err}");
 }
 

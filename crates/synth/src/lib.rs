@@ -46,7 +46,9 @@ pub enum ChangeGrade {
     /// Water and light vary; a few corals grow, bleach, die or shift.
     #[default]
     Mild,
-    /// Strong appearance change; many corals grow or bleach, some die or move.
+    /// Strong appearance change (light from any side, turbidity, colour,
+    /// sediment moved so the sand looks new); many corals grow a little
+    /// (3-8% across) or bleach, some die or move.
     Strong,
     /// Turbid water; a storm has moved or removed 30-50% of the corals.
     Storm,

@@ -6,7 +6,7 @@ use std::time::Instant;
 
 use anyhow::{bail, Context, Result};
 use revisit_colmap::{Engine, MapperOptions, PlyColors};
-use revisit_core::Camera;
+use revisit_core::{Camera, CameraModel};
 use revisit_features::SiftOptions;
 use revisit_matching::RollSearch;
 use revisit_matching::{MatchOptions, PairOptions, VerifyOptions};
@@ -51,7 +51,8 @@ impl CrossArg {
 
 #[derive(Clone, Copy, clap::ValueEnum)]
 enum RollSearchArg {
-    /// Decide the roll on the 256 strongest keypoints per image, then match once in full.
+    /// Decide the roll on the 256 strongest keypoints per image, then match
+    /// once in full (in full at every roll if no roll wins by --roll-margin).
     Probe,
     /// Match in full at every roll (4x the matching cost).
     Full,
@@ -73,6 +74,29 @@ enum PlyColorsArg {
     Rgb,
     /// One colour per session (the session of the first image seeing the point).
     Session,
+}
+
+/// A calibrated camera: MODEL:P1,P2,... in COLMAP's parameter order.
+#[derive(Clone, Debug)]
+struct CameraArg {
+    model: CameraModel,
+    params: Vec<f64>,
+}
+
+impl std::str::FromStr for CameraArg {
+    type Err = String;
+    fn from_str(s: &str) -> Result<Self, String> {
+        let (model, params) =
+            s.split_once(':').ok_or_else(|| format!("{s:?} is not MODEL:P1,P2,... (e.g. PINHOLE:512,512,320,240)"))?;
+        let model = CameraModel::from_name(model.trim()).map_err(|e| e.to_string())?;
+        let params = params
+            .split(',')
+            .map(|p| p.trim().parse::<f64>().map_err(|_| format!("{p:?} in {s:?} is not a number")))
+            .collect::<Result<Vec<_>, _>>()?;
+        // Checks the parameter count for the model.
+        Camera::new(0, model, 1, 1, params.clone()).map_err(|e| e.to_string())?;
+        Ok(CameraArg { model, params })
+    }
 }
 
 /// A rectangle in pixels: X,Y,W,H.
@@ -145,7 +169,8 @@ pub struct Args {
     cross_max_error: f64,
     /// A cross-visit pair is kept only if its roll's inliers are at least R
     /// times those of the runner-up roll (chance matches find about as many
-    /// at every roll). 1 turns the check off.
+    /// at every roll); a probe that no roll wins by R falls back to the full
+    /// search. 1 turns the check off.
     #[arg(long, default_value_t = 1.5, value_name = "R")]
     roll_margin: f32,
     #[command(flatten)]
@@ -157,6 +182,12 @@ pub struct Args {
     /// (keypoints are reported in full-resolution pixels).
     #[arg(long, default_value_t = 3200, value_name = "PX")]
     max_image_size: u32,
+    /// A calibrated camera for every session, as MODEL:PARAMS in COLMAP's
+    /// order (e.g. PINHOLE:fx,fy,cx,cy or OPENCV:fx,fy,cx,cy,k1,k2,p1,p2);
+    /// its intrinsics are then held fixed. Default: estimated per session
+    /// (self-calibration, weak for flat seabeds and few images).
+    #[arg(long, value_name = "MODEL:PARAMS")]
+    camera: Option<CameraArg>,
     /// Upright SIFT (no orientation): only for cameras that never roll.
     #[arg(long)]
     upright: bool,
@@ -284,7 +315,7 @@ pub fn run(args: Args) -> Result<()> {
     let verify_options = VerifyOptions { seed: args.seed, ..VerifyOptions::default() };
     let cross_options = CrossOptions {
         roll_search: match args.roll_search {
-            RollSearchArg::Probe => RollSearch::DEFAULT,
+            RollSearchArg::Probe => RollSearch::Probe { budget: 256, margin: args.roll_margin },
             RollSearchArg::Full => RollSearch::Full,
             RollSearchArg::Off => RollSearch::Off,
         },
@@ -302,7 +333,7 @@ pub fn run(args: Args) -> Result<()> {
         roll_margin: args.roll_margin,
     };
     cross_options.verify.check().context("--cross-min-inliers/--cross-max-error")?;
-    if !(args.roll_margin >= 1.0) {
+    if args.roll_margin.is_nan() || args.roll_margin < 1.0 {
         bail!("--roll-margin must be at least 1, not {}", args.roll_margin);
     }
     if args.vpr_top_k == 0 {
@@ -319,6 +350,7 @@ pub fn run(args: Args) -> Result<()> {
             MapperArg::Global => Engine::Global,
         },
         seed: args.seed,
+        refine_intrinsics: args.camera.is_none(),
         ..MapperOptions::default()
     };
 
@@ -330,11 +362,17 @@ pub fn run(args: Args) -> Result<()> {
     store.pin_setting("features", &feature_setting).context("--max-features/--upright/--ignore-region")?;
 
     let mut image_ids = BTreeMap::new();
+    let camera_setting = args.camera.as_ref().map_or("estimated".to_owned(), |c| format!("{:?}", c));
+    store.pin_setting("camera", &camera_setting).context("--camera")?;
     for session in &sessions {
-        let camera = Camera::default_for_size(0, session.width, session.height);
+        let camera = match &args.camera {
+            Some(c) => Camera::new(0, c.model, session.width, session.height, c.params.clone())
+                .with_context(|| format!("--camera for session {}", session.name))?,
+            None => Camera::default_for_size(0, session.width, session.height),
+        };
         let source = session.dir.display().to_string();
         let record = store
-            .ensure_session(&session.name, &source, &camera)
+            .ensure_session(&session.name, &source, &camera, args.camera.is_some())
             .with_context(|| format!("--session {}", session.name))?;
         let stored = store.camera(record.camera_id)?;
         if (stored.width, stored.height) != (session.width, session.height) {
@@ -356,6 +394,18 @@ pub fn run(args: Args) -> Result<()> {
     let features = timed(&mut seconds, "features", || {
         Ok(revisit_pipeline::extract_features(&mut store, &sessions, &image_ids, &sift, args.max_image_size, &bars)?)
     })?;
+    // Learned features come before matching within visits: their keypoints
+    // join the SIFT ones there, so cross-visit tracks continue inside visits.
+    let mut cross_report = CrossReport::default();
+    let visits = cross::visits(&sessions, &image_ids);
+    let search = cross_options.roll_search;
+    let learned_keypoints = match learned.as_mut().filter(|_| learned_pairs.is_some()) {
+        Some((_, learned)) => Some(timed(&mut seconds, "learned_features", || {
+            cross_report.learned_features = cross::extract_learned(&mut store, learned, &visits, search, &bars)?;
+            Ok(cross::register_learned_keypoints(&mut store, learned.method.name(), &visits)?)
+        })?),
+        None => None,
+    };
     let matching = timed(&mut seconds, "matching", || {
         let pairs = match learned_pairs {
             Some(LearnedPairs::All) => Vec::new(),
@@ -366,18 +416,14 @@ pub fn run(args: Args) -> Result<()> {
             &mut store,
             &pairs,
             &loaded,
+            learned_keypoints.as_ref(),
             &MatchOptions::default(),
             &verify_options,
             &bars,
         )?)
     })?;
-    let mut cross_report = CrossReport::default();
+    drop(learned_keypoints);
     if let (Some(which), Some((runtime, learned))) = (learned_pairs, learned.as_mut()) {
-        let visits = cross::visits(&sessions, &image_ids);
-        let search = cross_options.roll_search;
-        cross_report.learned_features = timed(&mut seconds, "learned_features", || {
-            Ok(cross::extract_learned(&mut store, learned, &visits, search, &bars)?)
-        })?;
         let places = match which {
             LearnedPairs::Places => Some(timed(&mut seconds, "places", || {
                 let method = learned.method.name();
