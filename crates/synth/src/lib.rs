@@ -47,8 +47,8 @@ pub enum ChangeGrade {
     #[default]
     Mild,
     /// Strong appearance change (light from any side, turbidity, colour,
-    /// sediment moved so the sand looks new); many corals grow a little
-    /// (3-8% across) or bleach, some die or move.
+    /// sediment moved so the sand looks new); many corals bleach, some die
+    /// or move (none grow: see `scene::rates`).
     Strong,
     /// Turbid water; a storm has moved or removed 30-50% of the corals.
     Storm,

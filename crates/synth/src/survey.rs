@@ -205,11 +205,12 @@ pub fn plan(options: &SynthOptions) -> Result<Survey, SynthError> {
     let tracks: Vec<Track> = (0..options.sessions)
         .map(|s| {
             let altitude_m = if s == 0 { rng.range(1.8, 2.2) } else { rng.range(1.6, 2.6) };
+            // Repeated surveys of a site follow its survey plan's axes: each
+            // visit turns a quarter further (s2 ~90, s3 ~180, s4 ~270
+            // degrees from s1), give or take 8 degrees.
             let heading_deg = match s {
                 0 => first_heading,
-                1 => first_heading + 90.0 + rng.range(-8.0, 8.0),
-                2 => first_heading + 180.0 + rng.range(-8.0, 8.0),
-                _ => rng.range(0.0, 360.0),
+                _ => first_heading + 90.0 * s as f64 + rng.range(-8.0, 8.0),
             }
             .rem_euclid(360.0);
             let offset_m = [rng.range(-0.3, 0.3), rng.range(-0.3, 0.3)];

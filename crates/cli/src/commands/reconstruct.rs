@@ -227,7 +227,8 @@ struct Report {
     chosen_model: Option<PathBuf>,
     registered_rule: &'static str,
     pairs: BTreeMap<String, PairReport>,
-    /// Sessions with no image in the chosen model: no verified link to the others.
+    /// Sessions (of several) with fewer than half their images in the chosen
+    /// model: they could not be linked to the others.
     unlinked_sessions: Vec<String>,
     /// Verified cross-session pairs by the roll of their second image (degrees).
     rolls: BTreeMap<u32, usize>,
@@ -494,7 +495,10 @@ pub fn run(args: Args) -> Result<()> {
 }
 
 fn report_sessions_unlinked(sessions: &BTreeMap<String, SessionReport>) -> Vec<String> {
-    sessions.iter().filter(|(_, s)| s.registered == 0).map(|(name, _)| name.clone()).collect()
+    if sessions.len() < 2 {
+        return Vec::new();
+    }
+    sessions.iter().filter(|(_, s)| 2 * s.registered < s.images).map(|(name, _)| name.clone()).collect()
 }
 
 fn print_summary(report: &Report, work: &Path) {
@@ -511,7 +515,8 @@ fn print_summary(report: &Report, work: &Path) {
     println!("models: {} (sizes {:?})", report.models, report.model_sizes);
     for name in &report.unlinked_sessions {
         println!(
-            "warning: session {name} could not be linked to the others (kept as its own model if COLMAP made one)"
+            "warning: session {name} could not be linked to the others: fewer than half its images are in \
+             the chosen model (the rest are kept as their own model if COLMAP made one)"
         );
     }
     if let Some(model) = &report.chosen_model {

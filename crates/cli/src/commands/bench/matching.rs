@@ -158,6 +158,7 @@ pub fn run(args: Args) -> Result<()> {
         words.extend(["--max-features".into(), args.max_features.to_string()]);
         words.extend(["--vpr-top-k".into(), args.vpr_top_k.to_string()]);
         words.extend(args.models.to_words());
+        words.extend(calibrated_camera(&truth_dir)?);
         println!("== {name}");
         let parsed = ReconstructWords::try_parse_from(&words).context("building the reconstruct command")?;
         reconstruct::run(parsed.args).with_context(|| format!("strategy {name}"))?;
@@ -176,6 +177,25 @@ pub fn run(args: Args) -> Result<()> {
         println!("wrote: {}", path.display());
     }
     Ok(())
+}
+
+/// `--camera MODEL:PARAMS` from the truth's intrinsics.json when every
+/// session has the same camera (the synthetic surveys' is calibrated).
+fn calibrated_camera(truth: &Path) -> Result<Vec<String>> {
+    let intrinsics = read_json(&truth.join("intrinsics.json"))?;
+    let cameras: BTreeSet<String> = intrinsics
+        .as_array()
+        .into_iter()
+        .flatten()
+        .filter_map(|c| {
+            let params: Vec<String> = c["params"].as_array()?.iter().map(|p| p.to_string()).collect();
+            Some(format!("{}:{}", c["model"].as_str()?, params.join(",")))
+        })
+        .collect();
+    Ok(match cameras.len() {
+        1 => vec!["--camera".to_owned(), cameras.into_iter().next().unwrap_or_default()],
+        _ => Vec::new(),
+    })
 }
 
 fn read_json(path: &Path) -> Result<serde_json::Value> {
