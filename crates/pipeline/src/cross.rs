@@ -107,6 +107,32 @@ fn rolls_of(visit_index: usize, search: RollSearch) -> &'static [Roll] {
     }
 }
 
+/// An image, its file, and the rolls it still needs.
+type MissingRolls<'a> = (ImageId, &'a Path, Vec<Roll>);
+
+/// Each image's rolls (by [`rolls_of`]) for which `stored` is false, with
+/// the counts of what is to do and what is reused.
+fn missing_rolls(
+    visits: &[Visit],
+    search: RollSearch,
+    stored: impl Fn(ImageId, Roll) -> bool,
+) -> (Vec<MissingRolls<'_>>, StageCounts) {
+    let mut todo = Vec::new();
+    let mut total = 0;
+    for (v, visit) in visits.iter().enumerate() {
+        for (id, path) in &visit.images {
+            let rolls = rolls_of(v, search);
+            total += rolls.len();
+            let missing: Vec<Roll> = rolls.iter().copied().filter(|r| !stored(*id, *r)).collect();
+            if !missing.is_empty() {
+                todo.push((*id, path.as_path(), missing));
+            }
+        }
+    }
+    let done: usize = todo.iter().map(|t| t.2.len()).sum();
+    (todo, StageCounts { done, reused: total - done })
+}
+
 fn load_rgb(path: &Path) -> Result<image::RgbImage, PipelineError> {
     Ok(image::open(path)
         .map_err(|e| PipelineError::BadImage { path: path.to_path_buf(), reason: e.to_string() })?
@@ -127,22 +153,9 @@ pub fn extract_learned(
 ) -> Result<StageCounts, PipelineError> {
     let method = learned.method.name();
     let stored = store.learned_feature_keys(method)?;
-    let mut todo: Vec<(ImageId, &Path, Vec<Roll>)> = Vec::new();
-    let mut total = 0;
-    for (v, visit) in visits.iter().enumerate() {
-        for (id, path) in &visit.images {
-            let rolls = rolls_of(v, search);
-            total += rolls.len();
-            let missing: Vec<Roll> = rolls.iter().copied().filter(|r| !stored.contains(&(*id, r.degrees()))).collect();
-            if !missing.is_empty() {
-                todo.push((*id, path, missing));
-            }
-        }
-    }
-    let done: usize = todo.iter().map(|t| t.2.len()).sum();
-    let counts = StageCounts { done, reused: total - done };
+    let (todo, counts) = missing_rolls(visits, search, |id, roll| stored.contains(&(id, roll.degrees())));
     tracing::info!(new = counts.done, reused = counts.reused, method, "learned features");
-    progress.start("learned features", done as u64);
+    progress.start("learned features", counts.done as u64);
     for (id, path, rolls) in todo {
         let image = load_rgb(path)?;
         for roll in rolls {
@@ -229,23 +242,9 @@ pub fn describe_places(
         Describer::Onnx(o) => o.name(),
     };
     let mut descriptors = store.global_descriptors(&name)?;
-    let mut todo: Vec<(ImageId, &Path, Vec<Roll>)> = Vec::new();
-    let mut total = 0;
-    for (v, visit) in visits.iter().enumerate() {
-        for (id, path) in &visit.images {
-            let rolls = rolls_of(v, search);
-            total += rolls.len();
-            let missing: Vec<Roll> =
-                rolls.iter().copied().filter(|r| !descriptors.contains_key(&(*id, r.degrees()))).collect();
-            if !missing.is_empty() {
-                todo.push((*id, path, missing));
-            }
-        }
-    }
-    let done: usize = todo.iter().map(|t| t.2.len()).sum();
-    let counts = StageCounts { done, reused: total - done };
+    let (todo, counts) = missing_rolls(visits, search, |id, roll| descriptors.contains_key(&(id, roll.degrees())));
     tracing::info!(new = counts.done, reused = counts.reused, name, "place descriptors");
-    progress.start("place descriptors", done as u64);
+    progress.start("place descriptors", counts.done as u64);
     for (id, path, rolls) in todo {
         let image = match describer {
             Describer::Onnx(_) => Some(load_rgb(path)?),
