@@ -152,8 +152,8 @@ pub struct Args {
     /// normalised global descriptors, 0..2).
     #[arg(long, value_name = "D")]
     vpr_max_distance: Option<f32>,
-    /// Place recognition: a global-descriptor ONNX model (RGB image [1,3,H,W]
-    /// in 0..1 -> [1,D]), e.g. MegaLoc. Default: built-in VLAD over the
+    /// Place recognition: a global-descriptor ONNX model (RGB image [1, 3, H, W]
+    /// in 0..1 -> [1, D]), e.g. MegaLoc. Default: built-in VLAD over the
     /// learned features, with a vocabulary learned from the survey.
     #[arg(long, value_name = "ONNX")]
     vpr_model: Option<PathBuf>,
