@@ -135,6 +135,9 @@ pub fn match_with_rolls(
         RollSearch::Probe { budget, margin } => {
             let a_probe = a.strongest(budget);
             let a_probe_keypoints = unrolled_keypoints(&a_probe, Roll::R0);
+            // A probe has a fraction of the keypoints: count its inliers down
+            // to the 8-point minimum, and let the margin decide.
+            let probe_verify = VerifyOptions { min_inliers: 8, min_inlier_ratio: 0.0, ..verify_options.clone() };
             let mut probe = CrossMatch {
                 roll: first.0,
                 matches: Vec::new(),
@@ -147,7 +150,7 @@ pub fn match_with_rolls(
                 let b_probe = b.strongest(budget);
                 let matches = matcher.match_features(&a_probe, &b_probe)?;
                 let geometry =
-                    verify(&a_probe_keypoints, &unrolled_keypoints(&b_probe, *roll), &matches, verify_options);
+                    verify(&a_probe_keypoints, &unrolled_keypoints(&b_probe, *roll), &matches, &probe_verify);
                 let inliers = geometry.inlier_matches.len();
                 probe.inliers_by_roll.push((*roll, inliers));
                 // Most verified inliers; among none, most raw matches.
