@@ -35,24 +35,15 @@ def grid_64(path):
     save(helper.make_graph(nodes, "grid_64", [image], [descriptor]), path)
 
 
-def mean_dynamic(path):
-    image = helper.make_tensor_value_info("image", TensorProto.FLOAT, [1, 3, "height", "width"])
-    descriptor = helper.make_tensor_value_info("descriptor", TensorProto.FLOAT, [1, 3])
+def global_mean(path, input_name, channels):
+    """Any H and W; the image's mean per channel (`channels` floats)."""
+    image = helper.make_tensor_value_info(input_name, TensorProto.FLOAT, [1, channels, "height", "width"])
+    descriptor = helper.make_tensor_value_info("descriptor", TensorProto.FLOAT, [1, channels])
     nodes = [
-        helper.make_node("GlobalAveragePool", ["image"], ["mean"]),
+        helper.make_node("GlobalAveragePool", [input_name], ["mean"]),
         helper.make_node("Flatten", ["mean"], ["descriptor"], axis=1),
     ]
-    save(helper.make_graph(nodes, "mean_dynamic", [image], [descriptor]), path)
-
-
-def grey_input(path):
-    image = helper.make_tensor_value_info("grey", TensorProto.FLOAT, [1, 1, "height", "width"])
-    descriptor = helper.make_tensor_value_info("descriptor", TensorProto.FLOAT, [1, 1])
-    nodes = [
-        helper.make_node("GlobalAveragePool", ["grey"], ["mean"]),
-        helper.make_node("Flatten", ["mean"], ["descriptor"], axis=1),
-    ]
-    save(helper.make_graph(nodes, "grey_input", [image], [descriptor]), path)
+    save(helper.make_graph(nodes, path.stem, [image], [descriptor]), path)
 
 
 def main():
@@ -61,8 +52,8 @@ def main():
     out = Path(sys.argv[1])
     out.mkdir(parents=True, exist_ok=True)
     grid_64(out / "grid_64.onnx")
-    mean_dynamic(out / "mean_dynamic.onnx")
-    grey_input(out / "grey_input.onnx")
+    global_mean(out / "mean_dynamic.onnx", "image", 3)
+    global_mean(out / "grey_input.onnx", "grey", 1)
 
 
 if __name__ == "__main__":
