@@ -585,7 +585,8 @@ def main() -> int:
                 failed.append(file)
             continue
 
-        if dest.is_file() and not args.force:
+        # an empty file counts as missing, as in get-models.sh
+        if dest.is_file() and dest.stat().st_size > 0 and not args.force:
             print(f"{file}: already in {args.dir}, skipped (--force re-exports it)")
             continue
         part = dest.with_name(dest.name + ".part")

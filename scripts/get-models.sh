@@ -10,18 +10,25 @@
 #   --force  re-export files that are already there
 #
 # Run it by hand, once. CI and the tests do not need it (they read ../shared/models).
-# It needs internet access to PyPI and about 5.5 GB of disk: PyTorch 2.15 and the
-# export packages, pinned below, go into a separate venv, .venv-models (about 3 GB
-# of downloads, not cached; the project's .venv is not touched). Most of that is
-# NVIDIA's CUDA libraries, which PyPI's Linux torch wheel depends on; nothing here
-# uses a GPU. `rm -rf .venv-models` gives the space back afterwards.
+# It needs internet access to PyPI and about 10 GB of free disk while it installs:
+# PyTorch 2.15 and the export packages, pinned below, go into a separate venv,
+# .venv-models (3.4 GB of downloads, not cached, 6.1 GB installed; the project's
+# .venv is not touched). Measured on a 2-core machine: about 4 minutes from nothing,
+# 2 to install and 2 to export (6.5 and 3.5 with a Rust build sharing the cores);
+# the five files take 62 MB. Most of the download is NVIDIA's CUDA libraries and
+# triton, which PyPI's Linux x86-64 torch wheel depends on (PyPI has no CPU-only
+# build of it, and torch does not import without them); nothing here uses a GPU.
+# `rm -rf .venv-models` gives the space back afterwards.
 #
 # Idempotent: files already in DIR are kept (each is written only once it has passed
 # its check), the venv is reused while its pins are unchanged, and when all five
 # files are present the script stops before creating or installing anything.
+# On failure it ends with one line on stderr, "get-models: ...", and exits non-zero.
 set -euo pipefail
 
-usage() { sed -n '7,11p' "$0" | sed 's/^# \{0,1\}//'; }
+usage() { sed -n '/^# Usage:/,/^#   --force/p' "$0" | sed 's/^# \{0,1\}//'; }
+die() { echo "get-models: $*" >&2; exit 1; }
+trap 'rc=$?; echo "get-models: failed (exit $rc) at line $LINENO: $BASH_COMMAND" >&2' ERR
 
 force=false
 dir=
@@ -50,6 +57,7 @@ if ! $force && [ "$missing" -eq 0 ]; then
   echo "get-models: all ${#files[@]} models are in $dir; nothing to do (--force re-exports them)"
   exit 0
 fi
+mkdir -p -- "$dir" 2>/dev/null && [ -w "$dir" ] || die "cannot write to $dir"
 
 # The export environment. torch 2.15 is what made ../shared/models; torchvision 0.29.2
 # carries deform_conv2d (ALIKED); onnxscript is needed by torch's dynamo exporter;
@@ -69,20 +77,30 @@ pins=(
 venv=.venv-models
 stamp=$venv/.pins
 PYTHON=${PYTHON:-python3}
+need_space() { # DIR GB: stop before downloading anything when the disk is too full
+  local free
+  free=$(df -Pk -- "$1" | awk 'NR == 2 { print int($4 / 1048576) }')
+  [ "$free" -ge "$2" ] || die "need about $2 GB free on the disk of $1 for the export environment, only $free GB there"
+}
 
 if [ -x "$venv/bin/python" ] && [ "$(cat "$stamp" 2>/dev/null)" = "$(printf '%s\n' "${pins[@]}")" ]; then
   echo "get-models: $venv is up to date"
 else
   if [ ! -x "$venv/bin/python" ]; then
-    command -v "$PYTHON" >/dev/null || { echo "get-models: $PYTHON not found" >&2; exit 1; }
+    command -v "$PYTHON" >/dev/null || die "$PYTHON not found (set PYTHON to a Python >= 3.11)"
     "$PYTHON" -c 'import sys; sys.exit(sys.version_info < (3, 11))' ||
-      { echo "get-models: torch 2.15 needs Python >= 3.11 ($PYTHON is $("$PYTHON" --version 2>&1))" >&2; exit 1; }
+      die "torch 2.15 needs Python >= 3.11 ($PYTHON is $("$PYTHON" --version 2>&1))"
+    # room for the venv (6.1 GB) and for the wheels pip keeps in TMPDIR until it has installed them
+    tmp=${TMPDIR:-/tmp}
+    if [ "$(stat -c %d -- "$root")" = "$(stat -c %d -- "$tmp")" ]; then need_space "$root" 10; else need_space "$root" 7 && need_space "$tmp" 4; fi
     echo "get-models: creating $venv ($("$PYTHON" --version 2>&1))"
-    "$PYTHON" -m venv "$venv"
+    "$PYTHON" -m venv "$venv" || { rm -rf "$venv"; die "could not create $venv with $PYTHON (Debian: apt-get install python3-venv)"; }
   fi
-  echo "get-models: installing into $venv (about 3 GB of downloads): ${pins[*]}"
-  "$venv/bin/python" -m pip install --quiet --disable-pip-version-check --no-cache-dir --upgrade pip
-  "$venv/bin/python" -m pip install --disable-pip-version-check --no-cache-dir "${pins[@]}"
+  echo "get-models: installing into $venv (3.4 GB of downloads, 6.1 GB on disk): ${pins[*]}"
+  "$venv/bin/python" -m pip install --quiet --disable-pip-version-check --no-cache-dir --upgrade pip ||
+    die "could not upgrade pip in $venv (PyPI unreachable?)"
+  "$venv/bin/python" -m pip install --disable-pip-version-check --no-cache-dir "${pins[@]}" ||
+    die "pip could not install the pinned packages into $venv (see pip's message above); run again to retry"
   printf '%s\n' "${pins[@]}" >"$stamp"
 fi
 
@@ -90,5 +108,6 @@ args=("$dir")
 if $force; then args=(--force "$dir"); fi
 if $force; then what="all ${#files[@]} models"; else what="$missing missing model(s)"; fi
 echo "get-models: exporting $what into $dir (on the CPU)"
-CUDA_VISIBLE_DEVICES= "$venv/bin/python" -u python/export_models.py "${args[@]}"
+CUDA_VISIBLE_DEVICES= "$venv/bin/python" -u python/export_models.py "${args[@]}" ||
+  die "export failed (see above); files that passed their check are in $dir, run again to retry the others"
 echo "get-models: done; the models are in $dir"

@@ -6,6 +6,7 @@
 
 mod commands;
 mod progress;
+mod signals;
 
 use clap::{Parser, Subcommand};
 
@@ -34,6 +35,9 @@ enum Command {
     /// Benchmarks that print Revisit's figures beside a reference implementation.
     #[command(subcommand)]
     Bench(commands::bench::Bench),
+    /// Check what Revisit runs on (Python with pycolmap, ONNX Runtime, each
+    /// learned model against its contract) and say what is ready.
+    Doctor(commands::doctor::Args),
 }
 
 fn main() -> std::process::ExitCode {
@@ -45,9 +49,14 @@ fn main() -> std::process::ExitCode {
         Command::Eval(args) => commands::eval::run(args),
         Command::Match(args) => commands::match_pair::run(args),
         Command::Bench(bench) => commands::bench::run(bench),
+        Command::Doctor(args) => commands::doctor::run(args),
     };
     match result {
         Ok(()) => std::process::ExitCode::SUCCESS,
+        Err(err) if is_cancelled(&err) => {
+            eprintln!("stopped by {}: finished work is stored; run the same command again to resume", signals::name());
+            std::process::ExitCode::from(signals::exit_code().unwrap_or(130))
+        }
         Err(err) => {
             // One line: the outermost context first, then its causes (a cause
             // that its error's own message already ends with is said once).
@@ -61,4 +70,9 @@ fn main() -> std::process::ExitCode {
             std::process::ExitCode::FAILURE
         }
     }
+}
+
+/// Whether the command stopped because a signal asked it to.
+fn is_cancelled(err: &anyhow::Error) -> bool {
+    err.chain().any(|cause| matches!(cause.downcast_ref(), Some(revisit_pipeline::PipelineError::Cancelled)))
 }

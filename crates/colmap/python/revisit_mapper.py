@@ -10,9 +10,15 @@ prints one JSON line with a summary of each model on stdout. Logs go to stderr.
 import argparse
 import json
 import shutil
+import sqlite3
 import sys
 import time
 from pathlib import Path
+
+
+def all_cameras(database: Path) -> set:
+    with sqlite3.connect(f"file:{database}?mode=ro", uri=True) as db:
+        return {row[0] for row in db.execute("SELECT camera_id FROM cameras")}
 
 
 def main() -> int:
@@ -26,8 +32,8 @@ def main() -> int:
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--threads", type=int, default=-1)
     parser.add_argument("--min-model-size", type=int, default=10)
-    parser.add_argument("--fixed-intrinsics", action="store_true",
-                        help="calibrated cameras: keep focal length, principal point and distortion")
+    parser.add_argument("--constant-cameras", default="",
+                        help="comma-separated ids of calibrated cameras, whose intrinsics are held fixed")
     args = parser.parse_args()
 
     try:
@@ -36,6 +42,7 @@ def main() -> int:
         print(f"pycolmap is not importable from {sys.executable}: {err}", file=sys.stderr)
         return 3
 
+    constant = {int(c) for c in args.constant_cameras.split(",") if c}
     if args.output.exists():
         shutil.rmtree(args.output)
     args.output.mkdir(parents=True)
@@ -47,10 +54,8 @@ def main() -> int:
         options.min_model_size = args.min_model_size
         options.mapper.random_seed = args.seed
         options.mapper.num_threads = args.threads
-        if args.fixed_intrinsics:
-            options.ba_refine_focal_length = False
-            options.ba_refine_principal_point = False
-            options.ba_refine_extra_params = False
+        options.constant_cameras = constant
+        options.mapper.constant_cameras = constant
         raw = args.output / "raw"
         raw.mkdir()
         models = pycolmap.incremental_mapping(
@@ -63,7 +68,8 @@ def main() -> int:
             options.random_seed = args.seed
         if hasattr(options, "num_threads"):
             options.num_threads = args.threads
-        if args.fixed_intrinsics:
+        # GLOMAP holds all cameras fixed or none.
+        if constant and constant >= all_cameras(args.database):
             ba = options.mapper.bundle_adjustment
             ba.refine_focal_length = False
             ba.refine_principal_point = False

@@ -5,8 +5,11 @@
 //! embedded in the binary and written next to the output before each run, so
 //! an installed `revisit` needs nothing but a Python with pycolmap.
 
+use std::io::Read;
 use std::path::{Path, PathBuf};
-use std::process::Command;
+use std::process::{Command, Output, Stdio};
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::time::Duration;
 
 use serde::{Deserialize, Serialize};
 
@@ -32,6 +35,40 @@ pub enum MapperError {
     Failed { code: Option<i32>, stderr_tail: String },
     #[error("COLMAP mapping printed no summary: {0}")]
     BadSummary(String),
+    #[error("COLMAP mapping was stopped on request")]
+    Cancelled,
+}
+
+/// Runs `command` to the end and returns its output, or kills it and returns
+/// `None` once `cancelled` is set. Its output is read on threads, so that a
+/// chatty child never blocks on a full pipe.
+fn run_until_cancelled(mut command: Command, cancelled: &AtomicBool) -> std::io::Result<Option<Output>> {
+    let mut child = command.stdout(Stdio::piped()).stderr(Stdio::piped()).spawn()?;
+    let drain = |pipe: Option<Box<dyn Read + Send>>| {
+        std::thread::spawn(move || {
+            let mut bytes = Vec::new();
+            if let Some(mut pipe) = pipe {
+                let _ = pipe.read_to_end(&mut bytes);
+            }
+            bytes
+        })
+    };
+    let stdout = drain(child.stdout.take().map(|p| Box::new(p) as Box<dyn Read + Send>));
+    let stderr = drain(child.stderr.take().map(|p| Box::new(p) as Box<dyn Read + Send>));
+    let status = loop {
+        if let Some(status) = child.try_wait()? {
+            break status;
+        }
+        if cancelled.load(Ordering::SeqCst) {
+            child.kill()?;
+            child.wait()?;
+            return Ok(None);
+        }
+        std::thread::sleep(Duration::from_millis(100));
+    };
+    let stdout = stdout.join().unwrap_or_default();
+    let stderr = stderr.join().unwrap_or_default();
+    Ok(Some(Output { status, stdout, stderr }))
 }
 
 /// Which COLMAP mapper runs.
@@ -57,14 +94,11 @@ pub struct MapperOptions {
     pub threads: i32,
     /// Smallest model COLMAP keeps, in images. Default 10 (COLMAP's).
     pub min_model_size: usize,
-    /// Refine focal lengths and distortion in bundle adjustment. Default
-    /// true; false for calibrated cameras, whose intrinsics are held fixed.
-    pub refine_intrinsics: bool,
 }
 
 impl Default for MapperOptions {
     fn default() -> Self {
-        Self { engine: Engine::Incremental, seed: 0, threads: -1, min_model_size: 10, refine_intrinsics: true }
+        Self { engine: Engine::Incremental, seed: 0, threads: -1, min_model_size: 10 }
     }
 }
 
@@ -84,52 +118,48 @@ struct Summary {
     models: Vec<ModelSummary>,
 }
 
-/// Finds the Python interpreter: `explicit` if given, else `$REVISIT_PYTHON`,
-/// else `.venv/bin/python` in the current folder or any parent of the
-/// executable's folder (a checkout's `target/release/revisit` finds the
-/// checkout's `.venv`). Checks that it imports pycolmap.
-pub fn find_python(explicit: Option<&Path>) -> Result<PathBuf, MapperError> {
-    let mut candidates: Vec<PathBuf> = Vec::new();
-    if let Some(path) = explicit {
-        candidates.push(path.to_path_buf());
-    } else if let Some(env) = std::env::var_os(PYTHON_ENV) {
-        candidates.push(PathBuf::from(env));
-    } else {
-        let venv = Path::new(".venv").join("bin").join("python");
-        if let Ok(cwd) = std::env::current_dir() {
-            candidates.push(cwd.join(&venv));
-        }
-        if let Ok(exe) = std::env::current_exe() {
-            candidates.extend(exe.ancestors().skip(1).map(|dir| dir.join(&venv)));
-        }
-    }
-    let Some(python) = candidates.iter().find(|p| p.is_file()).cloned() else {
-        let looked = candidates.iter().map(|p| p.display().to_string()).collect::<Vec<_>>().join(", ");
-        return Err(MapperError::NoPython { looked });
-    };
-    let output = Command::new(&python)
+/// Checks that `python` runs and imports pycolmap; returns it.
+pub fn check_python(python: &Path) -> Result<PathBuf, MapperError> {
+    let output = Command::new(python)
         .args(["-c", "import pycolmap"])
         .output()
-        .map_err(|source| MapperError::Spawn { python: python.clone(), source })?;
+        .map_err(|source| MapperError::Spawn { python: python.to_path_buf(), source })?;
     if !output.status.success() {
         let stderr = String::from_utf8_lossy(&output.stderr);
         let last = stderr.lines().last().unwrap_or("").to_owned();
-        return Err(MapperError::NoPycolmap { python, stderr: last });
+        return Err(MapperError::NoPycolmap { python: python.to_path_buf(), stderr: last });
     }
-    Ok(python)
+    Ok(python.to_path_buf())
 }
 
-/// Maps the store `database` (images under `image_root`) into `output/<k>`,
-/// k = 0, 1, ... by decreasing size, and returns every model produced.
-/// `extend` is an existing model to continue (incremental engine only).
+/// One mapping run: what COLMAP reads and where it writes.
+#[derive(Clone, Copy, Debug)]
+pub struct MapperRun<'a> {
+    /// Python with pycolmap.
+    pub python: &'a Path,
+    /// The store (a COLMAP database).
+    pub database: &'a Path,
+    /// The folder image names are relative to.
+    pub image_root: &'a Path,
+    /// Models go to `output/<k>`.
+    pub output: &'a Path,
+    /// An existing model to continue (incremental engine only).
+    pub extend: Option<&'a Path>,
+    /// Calibrated cameras, whose intrinsics are held fixed. The global
+    /// engine can hold all cameras fixed or none: it refines them all
+    /// unless every camera is listed.
+    pub constant_cameras: &'a [u32],
+}
+
+/// Maps the store into `run.output/<k>`, k = 0, 1, ... by decreasing size,
+/// and returns every model produced. Setting `cancelled` stops COLMAP (within
+/// a tenth of a second) and returns [`MapperError::Cancelled`].
 pub fn run_mapper(
-    python: &Path,
-    database: &Path,
-    image_root: &Path,
-    output: &Path,
-    extend: Option<&Path>,
+    run: &MapperRun<'_>,
     options: &MapperOptions,
+    cancelled: &AtomicBool,
 ) -> Result<Vec<ModelSummary>, MapperError> {
+    let MapperRun { python, database, image_root, output, extend, constant_cameras } = *run;
     let parent = output.parent().unwrap_or(Path::new("."));
     let script = parent.join("revisit_mapper.py");
     std::fs::write(&script, ENTRY_POINT).map_err(|source| MapperError::Io { path: script.clone(), source })?;
@@ -153,14 +183,17 @@ pub fn run_mapper(
         .arg(options.threads.to_string())
         .arg("--min-model-size")
         .arg(options.min_model_size.to_string());
-    if !options.refine_intrinsics {
-        command.arg("--fixed-intrinsics");
+    if !constant_cameras.is_empty() {
+        let ids: Vec<String> = constant_cameras.iter().map(u32::to_string).collect();
+        command.arg("--constant-cameras").arg(ids.join(","));
     }
     if let (Some(input), Engine::Incremental) = (extend, options.engine) {
         command.arg("--input-path").arg(input);
     }
     tracing::debug!(?command, "starting COLMAP");
-    let result = command.output().map_err(|source| MapperError::Spawn { python: python.to_path_buf(), source })?;
+    let result = run_until_cancelled(command, cancelled)
+        .map_err(|source| MapperError::Spawn { python: python.to_path_buf(), source })?
+        .ok_or(MapperError::Cancelled)?;
     let stderr = String::from_utf8_lossy(&result.stderr);
     if !result.status.success() {
         let tail: Vec<&str> = stderr.lines().rev().take(3).collect();

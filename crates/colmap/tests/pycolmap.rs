@@ -30,12 +30,12 @@ fn venv_python() -> PathBuf {
     python
 }
 
-/// Runs python/colmap_roundtrip.py on `model_dir`; returns pycolmap's view of
+/// Runs colmap_roundtrip.py (beside this file) on `model_dir`; returns pycolmap's view of
 /// the model and the folders where pycolmap wrote it back.
 fn pycolmap_round_trip(model_dir: &Path, work: &Path) -> (Value, PathBuf, PathBuf) {
     let (out_bin, out_txt) = (work.join("pycolmap_bin"), work.join("pycolmap_txt"));
     let output = Command::new(venv_python())
-        .arg(workspace_root().join("python/colmap_roundtrip.py"))
+        .arg(Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/colmap_roundtrip.py"))
         .args([model_dir, &out_bin, &out_txt])
         .output()
         .unwrap();

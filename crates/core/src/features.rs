@@ -192,6 +192,16 @@ impl LearnedFeatures {
     }
 }
 
+/// One end of a cross-visit match: which keypoint of the image it uses.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, PartialOrd, Ord, Hash)]
+pub enum CrossKey {
+    /// An existing keypoint of the image (e.g. a SIFT keypoint a learned one
+    /// was anchored to), by its index in the image's keypoint list.
+    Own(u32),
+    /// A learned keypoint, by its index in the learned features of its side.
+    Learned(u32),
+}
+
 /// A rotation of an image about the optical axis by a multiple of 90 degrees,
 /// clockwise as displayed. Downward-looking cameras revisit a place at any
 /// heading, so cross-visit matching tries all four.

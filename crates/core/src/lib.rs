@@ -8,11 +8,15 @@
 
 mod camera;
 mod features;
+mod name;
 mod pose;
 mod reconstruction;
 
 pub use camera::{Camera, CameraModel, CameraModelError};
-pub use features::{pair_from_id, pair_id, Features, Keypoint, LearnedFeatures, Roll, TwoViewConfig, TwoViewGeometry};
+pub use features::{
+    pair_from_id, pair_id, CrossKey, Features, Keypoint, LearnedFeatures, Roll, TwoViewConfig, TwoViewGeometry,
+};
+pub use name::{check_camera_name, check_session_name, session_of, ImageName, NameError, PairKind, SESSION_SEPARATOR};
 pub use pose::Rigid3;
 pub use reconstruction::{Image, Observation, Point3D, Reconstruction, TrackElement};
 
@@ -23,17 +27,8 @@ pub type ImageId = u32;
 /// COLMAP's identifier of a triangulated 3D point.
 pub type Point3DId = u64;
 
-/// Separator between a session name and a file name in COLMAP image names:
-/// the image `frame_001.png` of session `2024` is named `2024/frame_001.png`.
-pub const SESSION_SEPARATOR: char = '/';
-
-/// Splits a COLMAP image name `session/file` into its session and file parts.
-/// Returns `None` for a name with no session part.
-pub fn split_image_name(name: &str) -> Option<(&str, &str)> {
-    name.split_once(SESSION_SEPARATOR)
-}
-
-/// Joins a session name and a file name into a COLMAP image name.
+/// Joins a session name and a file name into a COLMAP image name (unchecked:
+/// [`ImageName::new`] checks both parts).
 pub fn image_name(session: &str, file: &str) -> String {
     format!("{session}{SESSION_SEPARATOR}{file}")
 }

@@ -18,7 +18,7 @@ pub struct Observation {
 pub struct Image {
     pub image_id: ImageId,
     pub camera_id: CameraId,
-    /// `session/file`, see [`crate::image_name`].
+    /// `session/file`, see [`crate::ImageName`].
     pub name: String,
     pub cam_from_world: Rigid3,
     pub points2d: Vec<Observation>,

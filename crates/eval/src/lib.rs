@@ -39,10 +39,7 @@ pub enum EvalError {
     BadOption { option: &'static str, reason: String },
 }
 
-/// The session of an image name: the prefix before `/`, or `""` if none.
-pub fn session_of(name: &str) -> &str {
-    revisit_core::split_image_name(name).map_or("", |(session, _)| session)
-}
+pub use revisit_core::session_of;
 
 /// Median and mean of a list (the median of an even count averages the two
 /// middle values); `None` when empty.

@@ -291,14 +291,16 @@ fn umeyama_recovers_a_known_similarity() {
 }
 
 fn poses_csv(truth: &Reconstruction) -> String {
-    let mut out = String::from("session,image,qw,qx,qy,qz,tx,ty,tz\n");
+    let mut writer = csv::Writer::from_writer(Vec::new());
+    writer.write_record(["session", "image", "qw", "qx", "qy", "qz", "tx", "ty", "tz"]).unwrap();
     for image in truth.images.values() {
         let (session, file) = image.name.split_once('/').unwrap();
         let [qw, qx, qy, qz] = image.cam_from_world.wxyz();
         let t = image.cam_from_world.translation;
-        out.push_str(&format!("{session},{file},{qw},{qx},{qy},{qz},{},{},{}\n", t.x, t.y, t.z));
+        let numbers = [qw, qx, qy, qz, t.x, t.y, t.z].map(|v| v.to_string());
+        writer.write_record([session, file].into_iter().chain(numbers.iter().map(String::as_str))).unwrap();
     }
-    out
+    String::from_utf8(writer.into_inner().unwrap()).unwrap()
 }
 
 #[test]

@@ -18,7 +18,9 @@ fn shared(rel: &str) -> PathBuf {
 }
 
 fn runtime() -> Runtime {
-    Runtime::load(None, 0).expect("ONNX Runtime from .venv (scripts/setup.sh)")
+    let venv = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../.venv");
+    let library = revisit_onnx::libraries_in_venv(&venv).into_iter().next();
+    Runtime::load(&library.expect("ONNX Runtime in .venv (scripts/setup.sh)"), 0).expect("ONNX Runtime loads")
 }
 
 fn npz(name: &str) -> NpzReader<std::fs::File> {
@@ -79,7 +81,7 @@ fn xfeat_backbone_reproduces_the_reference() {
     let input = Planar { data: x.iter().copied().collect(), channels: 1, width, height };
     let mut xfeat = XFeat::open(&runtime(), &shared("models/xfeat_backbone.onnx"), XFeatOptions::default()).unwrap();
     let output = xfeat.backbone(&input).unwrap();
-    for (name, ours) in [("feats", &output.feats), ("keypoints", &output.keypoints), ("heatmap", &output.heatmap)] {
+    for (name, ours) in [("feats", output.feats()), ("keypoints", output.keypoints()), ("heatmap", output.heatmap())] {
         let theirs = array(&mut reference, name);
         let diff = max_abs_diff(ours.as_slice().unwrap(), theirs.as_slice().unwrap());
         assert!(diff < 1e-4, "{name}: max abs difference {diff}");

@@ -1,3 +1,5 @@
+use ndarray::linalg::general_mat_mul;
+use ndarray::{ArrayView2, ArrayViewMut2};
 use revisit_core::Features;
 use serde::{Deserialize, Serialize};
 
@@ -99,7 +101,10 @@ fn match_normalised(da: &[f32], db: &[f32], dim: usize, options: &MatchOptions) 
         let rows = BLOCK_ROWS.min(na - block_start);
         let block = &da[block_start * dim..(block_start + rows) * dim];
         // similarity (rows x nb, row-major) = block (rows x dim) * db^T (dim x nb).
-        matrixmultiply_sgemm(block, db, &mut similarity[..rows * nb], rows, dim, nb);
+        if similarities(block, db, &mut similarity[..rows * nb], dim).is_err() {
+            // The slices were cut to rows x dim, nb x dim and rows x nb above.
+            return Vec::new();
+        }
         for (r, row) in similarity[..rows * nb].chunks_exact(nb).enumerate() {
             let i = block_start + r;
             let mut best = BestTwo::NONE;
@@ -126,34 +131,14 @@ fn match_normalised(da: &[f32], db: &[f32], dim: usize, options: &MatchOptions) 
     matches
 }
 
-/// `c (m x n) = a (m x k) * b^T` with `b` given as (n x k), all row-major.
-fn matrixmultiply_sgemm(a: &[f32], b: &[f32], c: &mut [f32], m: usize, k: usize, n: usize) {
-    if a.len() < m * k || b.len() < n * k || c.len() < m * n {
-        return;
-    }
-    // SAFETY: matrixmultiply offers only a raw-pointer API. The slices were
-    // checked above to hold m*k, n*k and m*n values, and the strides describe
-    // exactly those row-major layouts, so every access is in bounds. This is
-    // the workspace's one exception to `unsafe_code`.
-    #[allow(unsafe_code)]
-    unsafe {
-        matrixmultiply::sgemm(
-            m,
-            k,
-            n,
-            1.0,
-            a.as_ptr(),
-            k as isize,
-            1,
-            b.as_ptr(),
-            1,
-            k as isize,
-            0.0,
-            c.as_mut_ptr(),
-            n as isize,
-            1,
-        );
-    }
+/// `similarity = a * b^T` for `a` (m x `dim`) and `b` (n x `dim`), giving
+/// `similarity` (m x n), all row-major.
+fn similarities(a: &[f32], b: &[f32], similarity: &mut [f32], dim: usize) -> Result<(), ndarray::ShapeError> {
+    let a = ArrayView2::from_shape((a.len() / dim, dim), a)?;
+    let b = ArrayView2::from_shape((b.len() / dim, dim), b)?;
+    let mut similarity = ArrayViewMut2::from_shape((a.nrows(), b.nrows()), similarity)?;
+    general_mat_mul(1.0, &a, &b.t(), 0.0, &mut similarity);
+    Ok(())
 }
 
 #[cfg(test)]
@@ -182,6 +167,41 @@ mod tests {
         let a = features(&[[255, 255, 0, 0]]);
         let b = features(&[[255, 250, 0, 0], [250, 255, 0, 0]]);
         assert!(match_descriptors(&a, &b, &MatchOptions::default()).is_empty());
+    }
+
+    #[test]
+    fn similarities_are_the_dot_products_of_rows() {
+        let dim = 3;
+        let a = [1.0, 2.0, 3.0, -1.0, 0.5, 0.0];
+        let b = [0.0, 1.0, 0.0, 2.0, 0.0, 1.0, 1.0, 1.0, 1.0, -3.0, 0.0, 4.0];
+        let mut similarity = vec![0.0; 2 * 4];
+        similarities(&a, &b, &mut similarity, dim).unwrap();
+        assert_eq!(similarity, vec![2.0, 5.0, 6.0, 9.0, 0.5, -2.0, -0.5, 3.0]);
+    }
+
+    #[test]
+    fn twins_are_found_across_similarity_blocks() {
+        // More rows than one block holds; b is a permuted copy of a.
+        let n = BLOCK_ROWS + 300;
+        let mut state = 7u64;
+        let mut next = || {
+            state = state.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
+            (state >> 56) as u8
+        };
+        let rows: Vec<[u8; 32]> = (0..n).map(|_| std::array::from_fn(|_| next())).collect();
+        let twin_of = |i: usize| (i * 7 + 3) % n; // a permutation: gcd(7, n) = 1
+        let mut permuted = vec![[0u8; 32]; n];
+        for (i, row) in rows.iter().enumerate() {
+            permuted[twin_of(i)] = *row;
+        }
+        let features = |rows: &[[u8; 32]]| Features {
+            keypoints: vec![Keypoint { x: 0.0, y: 0.0, scale: 1.0, orientation: 0.0 }; rows.len()],
+            descriptors: rows.iter().flatten().copied().collect(),
+            descriptor_dim: 32,
+        };
+        let matches = match_descriptors(&features(&rows), &features(&permuted), &MatchOptions::default());
+        let expected: Vec<[u32; 2]> = (0..n).map(|i| [i as u32, twin_of(i) as u32]).collect();
+        assert_eq!(matches, expected);
     }
 
     #[test]

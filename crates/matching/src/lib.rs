@@ -5,6 +5,7 @@
 //! in features and get matches and two-view geometries back.
 
 mod anchor;
+pub mod cross;
 mod descriptors;
 pub mod lightglue;
 mod pairs;
@@ -12,6 +13,7 @@ pub mod roll;
 mod verify;
 
 pub use anchor::anchor_keypoints;
+pub use cross::{match_learned_pair, CrossOptions, LearnedPairMatch, CROSS_MIN_INLIERS};
 pub use descriptors::{match_descriptors, match_unit_descriptors, MatchOptions};
 pub use lightglue::LightGlue;
 pub use pairs::{exhaustive_pairs, intra_session_pairs, PairOptions};
@@ -31,7 +33,8 @@ fn check_range<T: PartialOrd + std::fmt::Display>(
     high: T,
     expected: &'static str,
 ) -> Result<(), OptionsError> {
-    if value < low || value > high {
+    // Written so that NaN is out of every range.
+    if !(value >= low && value <= high) {
         return Err(OptionsError::OutOfRange { name, value: value.to_string(), expected });
     }
     Ok(())

@@ -8,7 +8,7 @@ use std::path::Path;
 
 use ndarray::{ArrayView, IxDyn};
 use revisit_core::LearnedFeatures;
-use revisit_onnx::{Contract, InputSpec, Model, OnnxError, Runtime};
+use revisit_onnx::{Contract, InputSpec, Model, OnnxError, OutputSpec, Runtime};
 
 const LIGHTGLUE_ALIKED: Contract = contract(&[
     InputSpec { name: "kpts0", shape: &[Some(1), None, Some(2)] },
@@ -29,7 +29,7 @@ const LIGHTERGLUE_XFEAT: Contract = contract(&[
 ]);
 
 const fn contract(inputs: &'static [InputSpec]) -> Contract {
-    Contract { inputs, outputs: &["scores"] }
+    Contract { inputs, outputs: &[OutputSpec { name: "scores", shape: &[Some(1), None, None] }] }
 }
 
 /// Default minimum match probability.
@@ -98,12 +98,9 @@ impl LightGlue {
         for (name, view) in inputs {
             checked.push((name, view.map_err(|e| bad(format!("input {name}: {e}")))?));
         }
-        let outputs = self.model.run(&checked, &["scores"])?;
-        let scores = &outputs["scores"];
-        if scores.len() != (a.len() + 1) * (b.len() + 1) {
-            return Err(bad(format!("scores of shape {:?} for {} x {} keypoints", scores.shape(), a.len(), b.len())));
-        }
-        Ok(scores.iter().copied().collect())
+        let scores = self.model.run(&checked, &["scores"])?.remove("scores").unwrap_or_default();
+        self.model.check_output("scores", scores.shape(), &[Some(1), Some(a.len() + 1), Some(b.len() + 1)])?;
+        Ok(scores.into_iter().collect())
     }
 
     /// Mutual best matches `[index in a, index in b]` above the threshold.
@@ -118,7 +115,11 @@ impl LightGlue {
 
 /// Mutual row/column maxima of the `rows` x `cols` block of a
 /// (rows + 1) x (cols + 1) log-assignment matrix with exp(score) > `threshold`.
+/// None if `scores` is not of that size.
 pub fn mutual_matches(scores: &[f32], rows: usize, cols: usize, threshold: f32) -> Vec<[u32; 2]> {
+    if scores.len() != (rows + 1) * (cols + 1) {
+        return Vec::new();
+    }
     let stride = cols + 1;
     let finite = |v: f32| if v.is_finite() { v } else { f32::NEG_INFINITY };
     let best_in_row: Vec<Option<usize>> = (0..rows)
@@ -173,5 +174,10 @@ mod tests {
         ];
         assert_eq!(mutual_matches(&scores, 2, 2, 0.1), vec![[0, 0]]);
         assert_eq!(mutual_matches(&scores, 2, 2, 0.95), Vec::<[u32; 2]>::new());
+    }
+
+    #[test]
+    fn mutual_matches_of_a_matrix_of_the_wrong_size_are_none() {
+        assert_eq!(mutual_matches(&[0.0; 4], 2, 2, 0.1), Vec::<[u32; 2]>::new());
     }
 }

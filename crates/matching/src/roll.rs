@@ -11,28 +11,49 @@
 use revisit_core::{Keypoint, LearnedFeatures, Roll, TwoViewGeometry};
 use revisit_onnx::OnnxError;
 
+use serde::{Deserialize, Serialize};
+
 use crate::lightglue::LightGlue;
 use crate::verify::{verify, VerifyOptions};
+use crate::{check_range, OptionsError};
 
 /// How to choose the roll of the second image.
-#[derive(Clone, Copy, Debug, PartialEq)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
 pub enum RollSearch {
     /// Match at roll 0 only.
     Off,
     /// Match the full keypoint sets at every roll (4 matches per pair).
     Full,
     /// Decide on the `budget` strongest keypoints of each image, then match
-    /// once in full; if no roll wins the probe by `margin` (see
+    /// once in full; if no roll wins the probe by the roll margin (see
     /// [`CrossMatch::roll_is_clear`]), search in full.
-    Probe { budget: usize, margin: f32 },
+    Probe { budget: usize },
 }
 
 /// How much the winning roll's inliers must exceed the runner-up's, by default.
 pub const DEFAULT_ROLL_MARGIN: f32 = 1.5;
 
+/// Keypoints a side of the default probe.
+pub const DEFAULT_PROBE_BUDGET: usize = 256;
+
+impl Default for RollSearch {
+    fn default() -> Self {
+        RollSearch::DEFAULT
+    }
+}
+
 impl RollSearch {
-    /// The default probe: 256 keypoints a side, margin [`DEFAULT_ROLL_MARGIN`].
-    pub const DEFAULT: RollSearch = RollSearch::Probe { budget: 256, margin: DEFAULT_ROLL_MARGIN };
+    /// The default probe: [`DEFAULT_PROBE_BUDGET`] keypoints a side.
+    pub const DEFAULT: RollSearch = RollSearch::Probe { budget: DEFAULT_PROBE_BUDGET };
+
+    /// Fewer than 8 probe keypoints cannot verify anything.
+    pub fn check(self) -> Result<(), OptionsError> {
+        match self {
+            RollSearch::Probe { budget } => check_range("roll probe budget", budget, 8, usize::MAX, "at least 8"),
+            RollSearch::Off | RollSearch::Full => Ok(()),
+        }
+    }
 
     /// The rolls of the second image that this search needs features for.
     pub fn rolls(self) -> &'static [Roll] {
@@ -87,12 +108,14 @@ pub fn unrolled_keypoints(features: &LearnedFeatures, roll: Roll) -> Vec<Keypoin
 }
 
 /// Matches `a` (unrolled) against `b_by_roll` (features of the second image
-/// at each roll [`RollSearch::rolls`] asks for) and keeps the best roll.
+/// at each roll [`RollSearch::rolls`] asks for) and keeps the best roll. A
+/// probe falls back to the full search when no roll wins it by `roll_margin`.
 pub fn match_with_rolls(
     matcher: &mut LightGlue,
     a: &LearnedFeatures,
     b_by_roll: &[(Roll, LearnedFeatures)],
     search: RollSearch,
+    roll_margin: f32,
     verify_options: &VerifyOptions,
 ) -> Result<CrossMatch, OnnxError> {
     let a_keypoints = unrolled_keypoints(a, Roll::R0);
@@ -132,7 +155,7 @@ pub fn match_with_rolls(
     match search {
         RollSearch::Off => full(matcher, first.0, &first.1),
         RollSearch::Full => full_search(matcher),
-        RollSearch::Probe { budget, margin } => {
+        RollSearch::Probe { budget } => {
             let a_probe = a.strongest(budget);
             let a_probe_keypoints = unrolled_keypoints(&a_probe, Roll::R0);
             // A probe has a fraction of the keypoints: count its inliers down
@@ -159,7 +182,7 @@ pub fn match_with_rolls(
                     probe.roll = *roll;
                 }
             }
-            if !probe.roll_is_clear(margin) {
+            if !probe.roll_is_clear(roll_margin) {
                 let mut result = full_search(matcher)?;
                 result.fell_back = true;
                 return Ok(result);

@@ -9,6 +9,7 @@ use ndarray::ArrayD;
 use ndarray_npy::NpzReader;
 use revisit_core::{LearnedFeatures, Roll};
 use revisit_matching::lightglue::mutual_matches;
+use revisit_matching::roll::DEFAULT_ROLL_MARGIN;
 use revisit_matching::{LightGlue, RollSearch, VerifyOptions};
 use revisit_onnx::Runtime;
 
@@ -19,7 +20,9 @@ fn shared(rel: &str) -> PathBuf {
 }
 
 fn runtime() -> Runtime {
-    Runtime::load(None, 0).expect("ONNX Runtime from .venv (scripts/setup.sh)")
+    let venv = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../.venv");
+    let library = revisit_onnx::libraries_in_venv(&venv).into_iter().next();
+    Runtime::load(&library.expect("ONNX Runtime in .venv (scripts/setup.sh)"), 0).expect("ONNX Runtime loads")
 }
 
 struct Reference {
@@ -117,9 +120,27 @@ fn roll_search_finds_the_roll_of_a_rotated_real_pair() {
     let b_by_roll: Vec<(Roll, LearnedFeatures)> =
         Roll::ALL.iter().map(|&roll| (roll, aliked.extract(&b_image, roll).unwrap())).collect();
     let verify = VerifyOptions::default();
-    let off = revisit_matching::match_with_rolls(&mut matcher, &a, &b_by_roll, RollSearch::Off, &verify).unwrap();
-    let full = revisit_matching::match_with_rolls(&mut matcher, &a, &b_by_roll, RollSearch::Full, &verify).unwrap();
-    let probe = revisit_matching::match_with_rolls(&mut matcher, &a, &b_by_roll, RollSearch::DEFAULT, &verify).unwrap();
+    let off =
+        revisit_matching::match_with_rolls(&mut matcher, &a, &b_by_roll, RollSearch::Off, DEFAULT_ROLL_MARGIN, &verify)
+            .unwrap();
+    let full = revisit_matching::match_with_rolls(
+        &mut matcher,
+        &a,
+        &b_by_roll,
+        RollSearch::Full,
+        DEFAULT_ROLL_MARGIN,
+        &verify,
+    )
+    .unwrap();
+    let probe = revisit_matching::match_with_rolls(
+        &mut matcher,
+        &a,
+        &b_by_roll,
+        RollSearch::DEFAULT,
+        DEFAULT_ROLL_MARGIN,
+        &verify,
+    )
+    .unwrap();
     assert_eq!(full.roll, Roll::R90, "{:?}", full.inliers_by_roll);
     assert_eq!(probe.roll, Roll::R90, "{:?}", probe.inliers_by_roll);
     let inliers = full.geometry.inlier_matches.len();

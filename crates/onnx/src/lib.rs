@@ -1,13 +1,14 @@
 //! ONNX Runtime for Revisit's learned models.
 //!
-//! The runtime is a shared library loaded at run time (`ort`'s `load-dynamic`):
-//! [`Runtime::load`] finds it (an explicit path, `$ORT_DYLIB_PATH`, or the one
-//! inside the project's `.venv`, which `scripts/setup.sh` installs from PyPI's
-//! `onnxruntime` wheel) and checks that it exists before `ort` touches it,
-//! because `ort` panics on a missing library. [`Model::open`] opens a model and
-//! checks its inputs against the [`Contract`] the caller expects, so a wrong
-//! file is one clear error naming the file and the input at fault rather than
-//! a shape error deep inside a run.
+//! The runtime is a shared library loaded at run time (`ort`'s `load-dynamic`;
+//! the project's `.venv` has it, from PyPI's `onnxruntime` wheel, and
+//! `revisit_pipeline::locate` finds it). [`Runtime::load`] checks that it
+//! exists before `ort` touches it, because `ort` panics on a missing library. [`Model::open`] opens a model and
+//! checks its inputs and outputs against the [`Contract`] the caller expects,
+//! so a wrong file is one clear error naming the file and the input or output
+//! at fault rather than a shape error (or a panic) deep inside a run. Outputs
+//! are checked again after every run, and [`Model::check_output`] checks the
+//! sizes that follow the inputs.
 
 use std::collections::HashMap;
 use std::path::{Path, PathBuf};
@@ -22,7 +23,10 @@ pub const LIBRARY_ENV: &str = "ORT_DYLIB_PATH";
 
 #[derive(Debug, thiserror::Error)]
 pub enum OnnxError {
-    #[error("ONNX Runtime library not found (looked for {looked}); run scripts/setup.sh or set {LIBRARY_ENV}")]
+    #[error(
+        "ONNX Runtime library not found (looked for {looked}); run scripts/setup.sh, or pass --onnxruntime / set \
+         {LIBRARY_ENV}"
+    )]
     NoLibrary { looked: String },
     #[error("ONNX Runtime library {path}: {message}")]
     BadLibrary { path: PathBuf, message: String },
@@ -32,6 +36,10 @@ pub enum OnnxError {
     BadModel { path: PathBuf, message: String },
     #[error("model {path}: input `{input}` {message}")]
     Contract { path: PathBuf, input: String, message: String },
+    /// An output missing, of the wrong type, or of the wrong shape: declared
+    /// so when the model is opened, or found so after a run.
+    #[error("model {path}: output `{output}` {message}")]
+    Output { path: PathBuf, output: String, message: String },
     #[error("model {path}: run failed: {message}")]
     Run { path: PathBuf, message: String },
 }
@@ -47,59 +55,38 @@ pub struct Runtime {
 static RUNTIME: OnceLock<Result<(PathBuf, ort::environment::Environment), String>> = OnceLock::new();
 
 impl Runtime {
-    /// Loads ONNX Runtime from `explicit`, else `$ORT_DYLIB_PATH`, else the
-    /// `.venv` of the current folder or of any parent of the executable.
-    /// `threads` is the number of threads each model runs on (0: all cores).
-    pub fn load(explicit: Option<&Path>, threads: usize) -> Result<Runtime, OnnxError> {
-        let path = find_library(explicit)?;
+    /// Loads the ONNX Runtime library at `path` (`revisit_pipeline::locate`
+    /// finds it). `threads` is the number of threads each model runs on (0:
+    /// all cores).
+    pub fn load(path: &Path, threads: usize) -> Result<Runtime, OnnxError> {
+        // `ort` panics on a missing library: check first.
+        if !path.is_file() {
+            return Err(OnnxError::NoLibrary { looked: path.display().to_string() });
+        }
         let loaded = RUNTIME.get_or_init(|| {
-            let environment = ort::init_from(&path)
+            let environment = ort::init_from(path)
                 .map_err(|e| e.to_string())?
                 .with_name("revisit")
                 .build()
                 .map_err(|e| e.to_string())?;
-            Ok((path.clone(), environment))
+            Ok((path.to_path_buf(), environment))
         });
         match loaded {
             Ok((_, environment)) => Ok(Runtime { environment: environment.clone(), threads }),
-            Err(message) => Err(OnnxError::BadLibrary { path, message: message.clone() }),
+            Err(message) => Err(OnnxError::BadLibrary { path: path.to_path_buf(), message: message.clone() }),
         }
     }
 }
 
-fn find_library(explicit: Option<&Path>) -> Result<PathBuf, OnnxError> {
-    let mut candidates: Vec<PathBuf> = Vec::new();
-    if let Some(path) = explicit {
-        candidates.push(path.to_path_buf());
-    } else if let Some(env) = std::env::var_os(LIBRARY_ENV) {
-        candidates.push(PathBuf::from(env));
-    } else {
-        let mut roots: Vec<PathBuf> = Vec::new();
-        if let Ok(cwd) = std::env::current_dir() {
-            roots.push(cwd);
-        }
-        if let Ok(exe) = std::env::current_exe() {
-            roots.extend(exe.ancestors().skip(1).map(Path::to_path_buf));
-        }
-        for root in roots {
-            candidates.extend(venv_libraries(&root.join(".venv")));
-        }
-    }
-    candidates.iter().find(|p| p.is_file()).cloned().ok_or_else(|| OnnxError::NoLibrary {
-        looked: if candidates.is_empty() {
-            ".venv/lib/python3*/site-packages/onnxruntime/capi/libonnxruntime.so*".to_owned()
-        } else {
-            candidates.iter().map(|p| p.display().to_string()).collect::<Vec<_>>().join(", ")
-        },
-    })
-}
-
-/// `libonnxruntime.so*` files of the onnxruntime wheel inside a virtual environment.
-fn venv_libraries(venv: &Path) -> Vec<PathBuf> {
+/// The `libonnxruntime.so*` files of PyPI's onnxruntime wheel inside the
+/// virtual environment `venv`, sorted.
+pub fn libraries_in_venv(venv: &Path) -> Vec<PathBuf> {
     let mut found = Vec::new();
     let Ok(pythons) = std::fs::read_dir(venv.join("lib")) else { return found };
-    for python in pythons.flatten() {
-        let capi = python.path().join("site-packages").join("onnxruntime").join("capi");
+    let mut pythons: Vec<PathBuf> = pythons.flatten().map(|p| p.path()).collect();
+    pythons.sort();
+    for python in pythons {
+        let capi = python.join("site-packages").join("onnxruntime").join("capi");
         let Ok(files) = std::fs::read_dir(&capi) else { continue };
         let mut libraries: Vec<PathBuf> = files
             .flatten()
@@ -121,11 +108,45 @@ pub struct InputSpec {
     pub shape: &'static [Option<i64>],
 }
 
+/// One output a model must have: its name and shape, `None` for a dimension
+/// that follows the inputs (the caller checks it after a run with
+/// [`Model::check_output`]).
+#[derive(Debug, Clone, Copy)]
+pub struct OutputSpec {
+    pub name: &'static str,
+    pub shape: &'static [Option<i64>],
+}
+
 /// The inputs and outputs a caller relies on. Extra outputs are allowed.
 #[derive(Debug, Clone, Copy)]
 pub struct Contract {
     pub inputs: &'static [InputSpec],
-    pub outputs: &'static [&'static str],
+    pub outputs: &'static [OutputSpec],
+}
+
+impl Contract {
+    /// The names of the outputs, in the contract's order (for [`Model::run`]).
+    pub fn output_names(&self) -> Vec<&'static str> {
+        self.outputs.iter().map(|o| o.name).collect()
+    }
+}
+
+fn output_error(path: &Path, output: &str, message: String) -> OnnxError {
+    OnnxError::Output { path: path.to_path_buf(), output: output.to_owned(), message }
+}
+
+fn check_output_shape(path: &Path, name: &str, found: &[usize], expected: &[Option<usize>]) -> Result<(), OnnxError> {
+    let fits = found.len() == expected.len() && found.iter().zip(expected).all(|(&f, e)| e.is_none_or(|e| f == e));
+    if fits {
+        return Ok(());
+    }
+    Err(output_error(path, name, format!("has shape {found:?}, expected {}", expected_shape(expected))))
+}
+
+/// `[1, 64, ?, ?]`: a shape as a contract gives it, `?` for any size.
+fn expected_shape<T: std::fmt::Display>(shape: &[Option<T>]) -> String {
+    let dims: Vec<String> = shape.iter().map(|d| d.as_ref().map_or_else(|| "?".to_owned(), T::to_string)).collect();
+    format!("[{}]", dims.join(", "))
 }
 
 /// A model input or output as declared: name, whether it is a float tensor,
@@ -151,14 +172,17 @@ impl Outlet {
 pub struct Model {
     path: PathBuf,
     session: Session,
+    /// The contract's outputs, checked again after every run.
+    outputs: &'static [OutputSpec],
 }
 
 impl Model {
     /// Opens `path` and checks it against `contract`: every input by name,
     /// rank, float type and fixed dimensions, every output by name.
     pub fn open(runtime: &Runtime, path: &Path, contract: &Contract) -> Result<Model, OnnxError> {
-        let model = Model::open_unchecked(runtime, path)?;
+        let mut model = Model::open_unchecked(runtime, path)?;
         model.check(contract)?;
+        model.outputs = contract.outputs;
         Ok(model)
     }
 
@@ -174,7 +198,7 @@ impl Model {
             builder = builder.with_intra_threads(runtime.threads).map_err(|e| bad(e.into()))?;
         }
         let session = builder.commit_from_file(path).map_err(bad)?;
-        Ok(Model { path: path.to_path_buf(), session })
+        Ok(Model { path: path.to_path_buf(), session, outputs: &[] })
     }
 
     /// Every input: name, element type (None if not a tensor) and declared shape.
@@ -210,12 +234,35 @@ impl Model {
                 return Err(error(spec.name, format!("has shape {shape:?}, expected [{}]", expected.join(", "))));
             }
         }
-        for output in contract.outputs {
-            if !self.session.outputs().iter().any(|o| o.name() == *output) {
-                return Err(OnnxError::BadModel { path: self.path.clone(), message: format!("no output `{output}`") });
+        for spec in contract.outputs {
+            let error = |message: String| self.output_error(spec.name, message);
+            let Some(outlet) = self.session.outputs().iter().find(|o| o.name() == spec.name) else {
+                let names: Vec<&str> = self.session.outputs().iter().map(|o| o.name()).collect();
+                return Err(error(format!("is missing (the model's outputs are {names:?})")));
+            };
+            if outlet.dtype().tensor_type() != Some(ort::value::TensorElementType::Float32) {
+                return Err(error(format!("must be a float32 tensor, not {}", outlet.dtype())));
+            }
+            // An output declared without a shape is checked after each run only.
+            let shape: &[i64] = outlet.dtype().tensor_shape().map(|s| &s[..]).unwrap_or(&[]);
+            let fits = shape.len() == spec.shape.len()
+                && shape.iter().zip(spec.shape).all(|(&got, want)| want.is_none_or(|w| got == w || got < 0));
+            if !shape.is_empty() && !fits {
+                return Err(error(format!("has shape {shape:?}, expected {}", expected_shape(spec.shape))));
             }
         }
         Ok(())
+    }
+
+    fn output_error(&self, output: &str, message: String) -> OnnxError {
+        output_error(&self.path, output, message)
+    }
+
+    /// Checks the shape `found` of output `name` after a run against the
+    /// shape the caller expects (`None`: any size); a mismatch is an
+    /// [`OnnxError::Output`] naming the model file and the output.
+    pub fn check_output(&self, name: &str, found: &[usize], expected: &[Option<usize>]) -> Result<(), OnnxError> {
+        check_output_shape(&self.path, name, found, expected)
     }
 
     /// The declared shape of input `name` (-1 for a dynamic dimension).
@@ -244,11 +291,14 @@ impl Model {
         let results = self.session.run(values).map_err(fail)?;
         let mut out = HashMap::new();
         for name in outputs {
-            let value = results
-                .get(*name)
-                .ok_or_else(|| OnnxError::Run { path: self.path.clone(), message: format!("no output `{name}`") })?;
-            let array = value.try_extract_array::<f32>().map_err(fail)?;
-            out.insert((*name).to_owned(), array.to_owned());
+            let value = results.get(*name).ok_or_else(|| output_error(&self.path, name, "is missing".to_owned()))?;
+            let array = value.try_extract_array::<f32>().map_err(|e| output_error(&self.path, name, e.to_string()))?;
+            if let Some(spec) = self.outputs.iter().find(|o| o.name == *name) {
+                let expected: Vec<Option<usize>> =
+                    spec.shape.iter().map(|d| d.and_then(|d| usize::try_from(d).ok())).collect();
+                check_output_shape(&self.path, name, array.shape(), &expected)?;
+            }
+            out.insert((*name).to_owned(), array.as_standard_layout().into_owned());
         }
         Ok(out)
     }
@@ -260,7 +310,7 @@ mod tests {
 
     #[test]
     fn a_missing_library_is_an_error_naming_the_path() {
-        let Err(error) = find_library(Some(Path::new("/nonexistent/libonnxruntime.so"))) else {
+        let Err(error) = Runtime::load(Path::new("/nonexistent/libonnxruntime.so"), 0) else {
             panic!("a missing library was accepted");
         };
         assert!(error.to_string().contains("/nonexistent/libonnxruntime.so"), "{error}");

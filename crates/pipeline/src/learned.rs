@@ -1,7 +1,7 @@
 //! Learned matching methods by name: which model files they need, where those
 //! are found, and opening them on ONNX Runtime.
 
-use std::path::{Path, PathBuf};
+use std::path::Path;
 
 use image::RgbImage;
 use revisit_core::{LearnedFeatures, Roll};
@@ -9,9 +9,6 @@ use revisit_features::learned::{Aliked, LearnedExtractor, XFeat, XFeatOptions};
 use revisit_matching::{match_with_rolls, CrossMatch, LightGlue, RollSearch, VerifyOptions};
 use revisit_onnx::{OnnxError, Runtime};
 use serde::{Deserialize, Serialize};
-
-/// The environment variable naming the folder of model files.
-pub const MODELS_ENV: &str = "REVISIT_MODELS";
 
 /// A learned detector + matcher pair.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash, PartialOrd, Ord, Serialize, Deserialize)]
@@ -25,6 +22,21 @@ pub enum LearnedMethod {
 }
 
 impl LearnedMethod {
+    pub const ALL: [LearnedMethod; 2] = [LearnedMethod::AlikedLightglue, LearnedMethod::XfeatLighterglue];
+
+    /// The method named `name` (see [`LearnedMethod::name`]).
+    pub fn from_name(name: &str) -> Option<LearnedMethod> {
+        LearnedMethod::ALL.into_iter().find(|m| m.name() == name)
+    }
+
+    /// One line on the method, for `--help`.
+    pub fn description(self) -> &'static str {
+        match self {
+            LearnedMethod::AlikedLightglue => "ALIKED (1024 keypoints) + LightGlue: the most robust across years",
+            LearnedMethod::XfeatLighterglue => "XFeat (up to 4096 keypoints) + LighterGlue: faster features",
+        }
+    }
+
     /// The name used in options and in the store.
     pub fn name(self) -> &'static str {
         match self {
@@ -40,22 +52,6 @@ impl LearnedMethod {
             LearnedMethod::XfeatLighterglue => ["xfeat_backbone.onnx", "lighterglue_xfeat.onnx"],
         }
     }
-}
-
-/// The models folder: `explicit`, else `$REVISIT_MODELS`, else `models/` in
-/// the current folder or any parent of the executable's folder.
-pub fn find_models(explicit: Option<&Path>) -> PathBuf {
-    if let Some(path) = explicit {
-        return path.to_path_buf();
-    }
-    if let Some(env) = std::env::var_os(MODELS_ENV) {
-        return PathBuf::from(env);
-    }
-    let mut roots: Vec<PathBuf> = std::env::current_dir().into_iter().collect();
-    if let Ok(exe) = std::env::current_exe() {
-        roots.extend(exe.ancestors().skip(1).map(Path::to_path_buf));
-    }
-    roots.iter().map(|r| r.join("models")).find(|m| m.is_dir()).unwrap_or_else(|| PathBuf::from("models"))
 }
 
 /// A learned method, opened: its extractor and its matcher.
@@ -85,14 +81,16 @@ impl Learned {
         self.extractor.extract(image, roll)
     }
 
-    /// Matches `a` with the second image's features at the rolls `search` needs.
-    pub fn match_pair(
+    /// Matches `a` with the second image's features at the rolls `search`
+    /// needs (roll search alone, without anchoring or acceptance).
+    pub fn match_rolls(
         &mut self,
         a: &LearnedFeatures,
         b_by_roll: &[(Roll, LearnedFeatures)],
         search: RollSearch,
+        roll_margin: f32,
         verify: &VerifyOptions,
     ) -> Result<CrossMatch, OnnxError> {
-        match_with_rolls(&mut self.matcher, a, b_by_roll, search, verify)
+        match_with_rolls(&mut self.matcher, a, b_by_roll, search, roll_margin, verify)
     }
 }

@@ -3,10 +3,11 @@
 
 use std::path::{Path, PathBuf};
 
-use revisit_colmap::{run_mapper, Engine, MapperOptions, ModelSummary};
+use revisit_colmap::{run_mapper, Engine, MapperError, MapperOptions, MapperRun, ModelSummary};
+use revisit_core::CameraId;
 use serde::{Deserialize, Serialize};
 
-use crate::PipelineError;
+use crate::{Cancel, PipelineError};
 
 /// What the mapping stage produced.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
@@ -44,14 +45,18 @@ fn previous(work: &Path) -> Option<MappingOutcome> {
 /// Maps the store at `database` into `work`'s model folder. `inputs` is a
 /// fingerprint of what the store holds: if the last mapping had the same, its
 /// models are kept; if it differs and the engine is incremental, the previous
-/// largest model is extended with the new images.
+/// largest model is extended with the new images. A cancelled run leaves the
+/// previous models as they were.
+#[allow(clippy::too_many_arguments)] // the stage's inputs, each needed
 pub fn map(
     python: &Path,
     database: &Path,
     image_root: &Path,
     work: &Path,
     inputs: &str,
+    constant_cameras: &[CameraId],
     options: &MapperOptions,
+    cancel: &Cancel,
 ) -> Result<MappingOutcome, PipelineError> {
     let before = previous(work);
     if let Some(before) = &before {
@@ -76,7 +81,12 @@ pub fn map(
         None => None,
     };
     tracing::info!(extend = ?extend, "mapping with COLMAP");
-    let produced = run_mapper(python, database, image_root, &staging, extend_copy.as_deref(), options)?;
+    let run =
+        MapperRun { python, database, image_root, output: &staging, extend: extend_copy.as_deref(), constant_cameras };
+    let produced = match run_mapper(&run, options, cancel.flag()) {
+        Err(MapperError::Cancelled) => return Err(PipelineError::Cancelled),
+        other => other?,
+    };
 
     let root = model_root(work);
     if root.exists() {

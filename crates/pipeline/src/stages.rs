@@ -1,21 +1,25 @@
+//! The SIFT stages over the store: features per image, pairs within (and,
+//! for `--cross sift`, across) visits, descriptor matching and verification.
+//! [`sift_features`] is the one-image entry point they are built on.
+
 use std::collections::{BTreeMap, HashMap};
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::mpsc;
 
+use image::DynamicImage;
 use rayon::prelude::*;
-use revisit_core::{pair_id, Features, ImageId, Keypoint, LearnedFeatures};
-use revisit_features::SiftOptions;
+use revisit_core::{pair_id, Features, ImageId, Keypoint, LearnedFeatures, PairKind};
 use revisit_matching::{
     intra_session_pairs, match_descriptors, match_unit_descriptors, verify, MatchOptions, PairOptions, VerifyOptions,
 };
 use revisit_store::{PairRecord, Store};
-use serde::Serialize;
+use serde::{Deserialize, Serialize};
 
-use crate::ingest::SessionImages;
-use crate::{PipelineError, Progress};
+use crate::options::FeatureOptions;
+use crate::{Cancel, PipelineError, Progress, Session};
 
 /// What a stage did: new work, and finished work found in the store.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
 pub struct StageCounts {
     pub done: usize,
     pub reused: usize,
@@ -23,34 +27,43 @@ pub struct StageCounts {
 
 /// Runs `work` over `items` in parallel and hands each result to `write` on
 /// the calling thread, in item order (so the store is written
-/// deterministically). Stops at the first error; results already written stay.
-fn parallel_in_order<T, R, E>(
+/// deterministically). Stops at the first error, or when `cancel` is set
+/// (after writing what is in flight); results already written stay.
+fn parallel_in_order<T, R>(
     items: &[T],
-    work: impl Fn(&T) -> Result<R, E> + Sync,
-    mut write: impl FnMut(R) -> Result<(), E>,
+    work: impl Fn(&T) -> Result<R, PipelineError> + Sync,
+    mut write: impl FnMut(R) -> Result<(), PipelineError>,
     progress: &dyn Progress,
-) -> Result<(), E>
+    cancel: &Cancel,
+) -> Result<(), PipelineError>
 where
     T: Sync,
     R: Send,
-    E: Send,
 {
     let failed = AtomicBool::new(false);
-    let (sender, receiver) = mpsc::channel::<(usize, Result<R, E>)>();
+    let (sender, receiver) = mpsc::channel::<(usize, Result<R, PipelineError>)>();
     std::thread::scope(|scope| {
         let failed = &failed;
         let work = &work;
         scope.spawn(move || {
             items.par_iter().enumerate().for_each_with(sender, |sender, (index, item)| {
-                if !failed.load(Ordering::Relaxed) {
-                    // The receiver outlives the workers unless it stopped on an error.
-                    let _ = sender.send((index, work(item)));
+                if failed.load(Ordering::Relaxed) {
+                    return;
                 }
+                let result = if cancel.is_cancelled() { Err(PipelineError::Cancelled) } else { work(item) };
+                // The receiver outlives the workers unless it stopped on an error.
+                let _ = sender.send((index, result));
             });
         });
         let mut pending = BTreeMap::new();
         let mut next = 0;
+        let mut cancelled = false;
         for (index, result) in receiver {
+            if matches!(result, Err(PipelineError::Cancelled)) {
+                // Keep what is in flight: it is written below, once every worker stopped.
+                cancelled = true;
+                continue;
+            }
             pending.insert(index, result);
             while let Some(result) = pending.remove(&next) {
                 next += 1;
@@ -61,128 +74,87 @@ where
                 progress.advance();
             }
         }
+        if cancelled {
+            for result in pending.into_values() {
+                result.and_then(&mut write)?;
+            }
+            return Err(PipelineError::Cancelled);
+        }
         Ok(())
     })
 }
 
-/// Decodes an image to grey, downscaled so its larger side is at most
-/// `max_image_size_px`; returns it with the factor back to full resolution.
-fn load_grey(path: &std::path::Path, max_image_size_px: u32) -> Result<(image::GrayImage, f32), PipelineError> {
-    let bad = |reason: String| PipelineError::BadImage { path: path.to_path_buf(), reason };
-    let bytes = std::fs::read(path).map_err(|source| PipelineError::Io { path: path.to_path_buf(), source })?;
-    let format = image::guess_format(&bytes).map_err(|e| bad(e.to_string()))?;
-    // JPEG decoders fill a cut-off file with grey instead of failing: insist on
-    // the end-of-image marker (trailing padding allowed).
-    if format == image::ImageFormat::Jpeg {
-        let end = bytes.iter().rposition(|&b| b != 0 && b != b'\n' && b != b'\r').unwrap_or(0);
-        if end < 1 || bytes.get(end - 1..=end) != Some(&[0xFF, 0xD9][..]) {
-            return Err(bad("truncated JPEG (no end-of-image marker)".to_owned()));
+/// SIFT features of one decoded image, as every stage and node extracts them:
+/// downscaled to `options.max_image_size_px`, keypoints in full-resolution pixels.
+pub fn sift_features(options: &FeatureOptions, image: &DynamicImage) -> Result<Features, String> {
+    let (grey, factor) = crate::images::grey_at_most(image, options.max_image_size_px);
+    let mut features = revisit_features::extract_sift(&options.sift, &grey).map_err(|e| e.to_string())?;
+    if factor != 1.0 {
+        for kp in &mut features.keypoints {
+            kp.x *= factor;
+            kp.y *= factor;
+            kp.scale *= factor;
         }
     }
-    let grey = image::load_from_memory_with_format(&bytes, format).map_err(|e| bad(e.to_string()))?.to_luma8();
-    let longest = grey.width().max(grey.height());
-    if longest <= max_image_size_px {
-        return Ok((grey, 1.0));
-    }
-    let factor = longest as f32 / max_image_size_px as f32;
-    let width = ((grey.width() as f32 / factor).round() as u32).max(1);
-    let height = ((grey.height() as f32 / factor).round() as u32).max(1);
-    let small = image::imageops::resize(&grey, width, height, image::imageops::FilterType::Triangle);
-    Ok((small, grey.width() as f32 / width as f32))
+    Ok(features)
 }
 
-/// Feature extraction for every image of `sessions` whose features are not in
-/// the store yet. `image_ids` maps COLMAP names to store ids.
+/// SIFT features of every image of `sessions` whose features are not in the store yet.
 pub fn extract_features(
     store: &mut Store,
-    sessions: &[SessionImages],
-    image_ids: &BTreeMap<String, ImageId>,
-    sift: &SiftOptions,
-    max_image_size_px: u32,
+    sessions: &[Session],
+    options: &FeatureOptions,
     progress: &dyn Progress,
+    cancel: &Cancel,
 ) -> Result<StageCounts, PipelineError> {
     let finished = store.images_with_features()?;
-    let mut todo = Vec::new();
-    let mut total = 0;
-    for session in sessions {
-        for file in &session.files {
-            total += 1;
-            let name = revisit_core::image_name(&session.name, file);
-            if let Some(&id) = image_ids.get(&name) {
-                if !finished.contains(&id) {
-                    todo.push((id, session.dir.join(file)));
-                }
-            }
-        }
-    }
-    let counts = StageCounts { done: todo.len(), reused: total - todo.len() };
+    let all: Vec<_> = sessions.iter().flat_map(|s| &s.images).collect();
+    let todo: Vec<_> = all.iter().filter(|image| !finished.contains(&image.id)).collect();
+    let counts = StageCounts { done: todo.len(), reused: all.len() - todo.len() };
     tracing::info!(new = counts.done, reused = counts.reused, "features");
     progress.start("features", todo.len() as u64);
     parallel_in_order(
         &todo,
-        |(id, path)| {
-            let (grey, factor) = load_grey(path, max_image_size_px)?;
-            let mut features = revisit_features::extract_sift(sift, &grey)
-                .map_err(|e| PipelineError::Features { path: path.clone(), reason: e.to_string() })?;
-            if factor != 1.0 {
-                for kp in &mut features.keypoints {
-                    kp.x *= factor;
-                    kp.y *= factor;
-                    kp.scale *= factor;
-                }
-            }
-            Ok((*id, features))
+        |image| {
+            let decoded = crate::images::read(&image.path)?;
+            let features = sift_features(options, &decoded)
+                .map_err(|reason| PipelineError::Features { path: image.path.clone(), reason })?;
+            Ok((image.id, features))
         },
         |(id, features)| store.write_features(id, &features).map_err(PipelineError::from),
         progress,
+        cancel,
     )?;
     progress.finish();
     Ok(counts)
 }
 
-/// Which images of other sessions each image is matched with.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, serde::Deserialize)]
-#[serde(rename_all = "kebab-case")]
-pub enum CrossStrategy {
-    /// Intra-session pairs only.
-    None,
-    /// Every cross-session pair, with SIFT: the classic joint baseline.
-    #[default]
-    Sift,
-}
-
-/// An image pair to match, and whether it crosses sessions.
+/// An image pair to match, and whether it crosses visits.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, PartialOrd, Ord)]
 pub struct PlannedPair {
     pub image_id1: ImageId,
     pub image_id2: ImageId,
-    pub cross: bool,
+    pub kind: PairKind,
 }
 
-/// Plans the pairs to match: intra-session pairs by `pair_options`, cross-session
-/// pairs by `cross`. Sorted by (image 1, image 2).
-pub fn plan_pairs(
-    sessions: &[SessionImages],
-    image_ids: &BTreeMap<String, ImageId>,
-    cross: CrossStrategy,
-    pair_options: &PairOptions,
-) -> Vec<PlannedPair> {
-    let ids: Vec<Vec<ImageId>> =
-        sessions.iter().map(|s| s.image_names().iter().filter_map(|n| image_ids.get(n).copied()).collect()).collect();
+/// Plans the SIFT pairs: pairs within each visit by `pair_options`, and
+/// (`across`) every pair across visits. Sorted by (image 1, image 2).
+pub fn plan_pairs(sessions: &[Session], across: bool, pair_options: &PairOptions) -> Vec<PlannedPair> {
+    let ids: Vec<Vec<ImageId>> = sessions.iter().map(|s| s.images.iter().map(|i| i.id).collect()).collect();
     let mut pairs = Vec::new();
     for session in &ids {
         for (i, j) in intra_session_pairs(session.len(), pair_options) {
             if let (Some(&a), Some(&b)) = (session.get(i), session.get(j)) {
-                pairs.push(PlannedPair { image_id1: a, image_id2: b, cross: false });
+                pairs.push(PlannedPair { image_id1: a, image_id2: b, kind: PairKind::Intra });
             }
         }
     }
-    if cross == CrossStrategy::Sift {
+    if across {
         for (s, first) in ids.iter().enumerate() {
             for second in &ids[s + 1..] {
                 for &a in first {
                     for &b in second {
-                        pairs.push(PlannedPair { image_id1: a, image_id2: b, cross: true });
+                        pairs.push(PlannedPair { image_id1: a, image_id2: b, kind: PairKind::Cross });
                     }
                 }
             }
@@ -240,6 +212,7 @@ impl LearnedKeypoints {
 
 /// Matches and verifies every planned pair not yet in the store (with
 /// `learned`, SIFT and learned matches together, verified as one set).
+#[allow(clippy::too_many_arguments)] // the stage's inputs, each needed
 pub fn match_pairs(
     store: &mut Store,
     pairs: &[PlannedPair],
@@ -248,6 +221,7 @@ pub fn match_pairs(
     match_options: &MatchOptions,
     verify_options: &VerifyOptions,
     progress: &dyn Progress,
+    cancel: &Cancel,
 ) -> Result<StageCounts, PipelineError> {
     let method = match learned {
         Some(l) => format!("sift+{}", l.method),
@@ -262,7 +236,7 @@ pub fn match_pairs(
     let empty = Features::default();
     parallel_in_order(
         &todo,
-        |pair| -> Result<_, PipelineError> {
+        |pair| {
             let a = features.get(&pair.image_id1).unwrap_or(&empty);
             let b = features.get(&pair.image_id2).unwrap_or(&empty);
             let mut matches = match_descriptors(a, b, match_options);
@@ -278,7 +252,7 @@ pub fn match_pairs(
             let record = PairRecord {
                 image_id1: pair.image_id1,
                 image_id2: pair.image_id2,
-                kind: if pair.cross { "cross" } else { "intra" }.to_owned(),
+                kind: pair.kind,
                 method: method.clone(),
                 roll_deg: 0,
                 num_matches: matches.len(),
@@ -288,6 +262,7 @@ pub fn match_pairs(
         },
         |(record, matches, geometry)| store.write_pair(&record, &matches, &geometry).map_err(PipelineError::from),
         progress,
+        cancel,
     )?;
     progress.finish();
     Ok(counts)

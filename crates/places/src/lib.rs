@@ -42,7 +42,8 @@ pub struct Candidate {
 }
 
 /// How many candidates a query keeps.
-#[derive(Clone, Copy, Debug, PartialEq)]
+#[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+#[serde(default, deny_unknown_fields)]
 pub struct CandidateOptions {
     /// The nearest `top_k` database images.
     pub top_k: usize,
@@ -53,6 +54,19 @@ pub struct CandidateOptions {
 impl Default for CandidateOptions {
     fn default() -> Self {
         CandidateOptions { top_k: 5, max_distance: None }
+    }
+}
+
+impl CandidateOptions {
+    /// A query needs at least one candidate; a distance bound is in (0, 2].
+    pub fn check(&self) -> Result<(), String> {
+        if self.top_k == 0 {
+            return Err("top_k must be at least 1".to_owned());
+        }
+        match self.max_distance {
+            Some(d) if !(d > 0.0 && d <= 2.0) => Err(format!("max_distance {d} is not in (0, 2]")),
+            _ => Ok(()),
+        }
     }
 }
 

@@ -68,8 +68,10 @@ impl OnnxPlaces {
         let input = Planar::rgb(&fitted, Roll::R0);
         let view = ArrayView::from_shape(IxDyn(&[1, 3, input.height, input.width]), &input.data)
             .map_err(|e| OnnxError::Run { path: self.model.path().to_path_buf(), message: e.to_string() })?;
-        let outputs = self.model.run(&[(self.input.as_str(), view)], &[self.output.as_str()])?;
-        let mut descriptor: Vec<f32> = outputs[&self.output].iter().copied().collect();
+        let output = self.model.run(&[(self.input.as_str(), view)], &[self.output.as_str()])?.remove(&self.output);
+        let output = output.unwrap_or_default();
+        self.model.check_output(&self.output, output.shape(), &[Some(1), None])?;
+        let mut descriptor: Vec<f32> = output.into_iter().collect();
         if descriptor.is_empty() || descriptor.iter().any(|v| !v.is_finite()) {
             return Err(OnnxError::Run {
                 path: self.model.path().to_path_buf(),

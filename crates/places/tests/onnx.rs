@@ -1,5 +1,6 @@
 //! Global descriptors from a user's ONNX model, with small models that the
-//! test generates (python/place_test_models.py, with the project's Python).
+//! test generates (place_test_models.py beside this file, with the project's
+//! Python).
 
 #![allow(clippy::unwrap_used, clippy::expect_used)] // test helpers panic on broken fixtures
 
@@ -20,13 +21,16 @@ fn models() -> tempfile::TempDir {
     let dir = tempfile::tempdir().unwrap();
     let python = repo().join(".venv/bin/python");
     assert!(python.is_file(), "{} is missing: run scripts/setup.sh", python.display());
-    let status = Command::new(python).arg(repo().join("python/place_test_models.py")).arg(dir.path()).status().unwrap();
-    assert!(status.success(), "python/place_test_models.py failed");
+    let script = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/place_test_models.py");
+    let status = Command::new(python).arg(&script).arg(dir.path()).status().unwrap();
+    assert!(status.success(), "{} failed", script.display());
     dir
 }
 
 fn runtime() -> Runtime {
-    Runtime::load(None, 1).expect("ONNX Runtime from .venv (scripts/setup.sh)")
+    let venv = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../.venv");
+    let library = revisit_onnx::libraries_in_venv(&venv).into_iter().next();
+    Runtime::load(&library.expect("ONNX Runtime in .venv (scripts/setup.sh)"), 1).expect("ONNX Runtime loads")
 }
 
 /// A 640x480 image: four coloured quadrants, with a white square in the
@@ -104,4 +108,15 @@ fn a_model_that_breaks_the_contract_is_named_with_its_input() {
 
     let missing = OnnxPlaces::open(&runtime(), &dir.path().join("nothing.onnx")).err().unwrap();
     assert!(matches!(missing, OnnxError::MissingModel { .. }), "{missing}");
+}
+
+#[test]
+fn a_descriptor_of_the_wrong_shape_is_named_with_its_output() {
+    let dir = models();
+    let mut places = OnnxPlaces::open(&runtime(), &dir.path().join("two_rows.onnx")).unwrap();
+    let image = RgbImage::from_pixel(64, 48, Rgb([10, 20, 30]));
+    let error = places.describe(&image, Roll::R0).err().expect("a [2, 3] descriptor was accepted");
+    assert!(matches!(error, OnnxError::Output { ref output, .. } if output == "descriptor"), "{error}");
+    let message = error.to_string();
+    assert!(message.contains("two_rows.onnx") && message.contains("[2, 3]"), "{message}");
 }

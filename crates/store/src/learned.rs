@@ -11,19 +11,10 @@
 
 use std::collections::{BTreeMap, BTreeSet, HashMap};
 
-use revisit_core::{ImageId, Keypoint, LearnedFeatures, TwoViewGeometry};
+use revisit_core::{CrossKey, ImageId, Keypoint, LearnedFeatures, TwoViewGeometry};
 use rusqlite::{params, OptionalExtension};
 
 use crate::{blob, count, insert_pair, PairRecord, Result, Store, StoreError};
-
-/// One end of a cross-visit match, before it is stored.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
-pub enum CrossKey {
-    /// An existing keypoint of the image (e.g. a SIFT keypoint it was anchored to).
-    Own(u32),
-    /// A learned keypoint, by its index in the learned features of the side.
-    Learned(u32),
-}
 
 /// One image of a cross-visit pair: which learned features its keys refer to.
 #[derive(Clone, Copy, Debug)]

@@ -10,13 +10,15 @@ mod blob;
 mod learned;
 mod schema;
 
-pub use learned::{CrossKey, CrossSide};
+pub use learned::CrossSide;
+pub use revisit_core::CrossKey;
 
 use std::collections::{BTreeMap, BTreeSet};
 use std::path::{Path, PathBuf};
 
 use revisit_core::{
-    pair_from_id, pair_id, Camera, CameraId, CameraModel, Features, ImageId, Keypoint, TwoViewConfig, TwoViewGeometry,
+    pair_from_id, pair_id, Camera, CameraId, CameraModel, Features, ImageId, Keypoint, PairKind, TwoViewConfig,
+    TwoViewGeometry,
 };
 use rusqlite::{params, Connection, OptionalExtension};
 
@@ -30,6 +32,10 @@ pub enum StoreError {
     SessionSourceMismatch { path: PathBuf, session: String, stored: String, given: String },
     #[error("store {path}: {key} was {stored} when the store was made, not {given}; use a new output folder")]
     SettingMismatch { path: PathBuf, key: String, stored: String, given: String },
+    #[error("store {path} was made by an older Revisit (its sessions have no visit order); use a new output folder")]
+    OldSchema { path: PathBuf },
+    #[error("store {path}: camera {name} is {stored}, not {given}")]
+    CameraMismatch { path: PathBuf, name: String, stored: String, given: String },
     #[error("store {path}: no image with id {image_id}")]
     UnknownImage { path: PathBuf, image_id: ImageId },
 }
@@ -41,8 +47,7 @@ pub type Result<T> = std::result::Result<T, StoreError>;
 pub struct PairRecord {
     pub image_id1: ImageId,
     pub image_id2: ImageId,
-    /// `intra` (same session) or `cross` (different sessions).
-    pub kind: String,
+    pub kind: PairKind,
     /// The matcher, e.g. `sift`.
     pub method: String,
     /// The roll applied to image 2 before matching, degrees (0 for SIFT).
@@ -51,12 +56,13 @@ pub struct PairRecord {
     pub num_inliers: usize,
 }
 
-/// A session as stored: its name, where its images came from, its camera.
-#[derive(Clone, Debug, PartialEq)]
+/// A session as stored: its name, where its images came from, and its place
+/// in the order of visits (0 = the first, the reference).
+#[derive(Clone, Debug, PartialEq, Eq)]
 pub struct SessionRecord {
     pub name: String,
     pub source: String,
-    pub camera_id: CameraId,
+    pub visit: usize,
 }
 
 pub struct Store {
@@ -74,6 +80,15 @@ impl Store {
         let _mode: String =
             store.conn.query_row("PRAGMA journal_mode=WAL", [], |row| row.get(0)).map_err(|e| store.sql(e))?;
         store.conn.execute_batch(schema::SCHEMA).map_err(|e| store.sql(e))?;
+        let visit_column: i64 = store
+            .conn
+            .query_row("SELECT COUNT(*) FROM pragma_table_info('revisit_sessions') WHERE name = 'visit'", [], |r| {
+                r.get(0)
+            })
+            .map_err(|e| store.sql(e))?;
+        if visit_column == 0 {
+            return Err(StoreError::OldSchema { path: path.to_path_buf() });
+        }
         Ok(store)
     }
 
@@ -122,35 +137,61 @@ impl Store {
         }
     }
 
-    /// The sessions in the store, by name.
+    /// The sessions in the store, in visit order.
     pub fn sessions(&self) -> Result<Vec<SessionRecord>> {
         let mut stmt = self
             .conn
-            .prepare("SELECT name, source, camera_id FROM revisit_sessions ORDER BY name")
+            .prepare("SELECT name, source, visit FROM revisit_sessions ORDER BY visit")
             .map_err(|e| self.sql(e))?;
         let rows = stmt
-            .query_map([], |r| Ok(SessionRecord { name: r.get(0)?, source: r.get(1)?, camera_id: r.get(2)? }))
+            .query_map([], |r| Ok(SessionRecord { name: r.get(0)?, source: r.get(1)?, visit: count(r.get(2)?) }))
             .map_err(|e| self.sql(e))?;
         rows.collect::<std::result::Result<_, _>>().map_err(|e| self.sql(e))
     }
 
-    /// Adds a session with its camera, or returns the stored one if it was
-    /// added before from the same source. `calibrated` marks the camera's
-    /// parameters as known (COLMAP's `prior_focal_length`).
-    pub fn ensure_session(
-        &mut self,
-        name: &str,
-        source: &str,
-        camera: &Camera,
-        calibrated: bool,
-    ) -> Result<SessionRecord> {
-        if let Some(stored) = self.sessions()?.into_iter().find(|s| s.name == name) {
+    /// Adds a session as the next visit, or returns the stored one if it was
+    /// added before from the same source.
+    pub fn ensure_session(&mut self, name: &str, source: &str) -> Result<SessionRecord> {
+        let sessions = self.sessions()?;
+        if let Some(stored) = sessions.iter().find(|s| s.name == name) {
             if stored.source != source {
                 return Err(StoreError::SessionSourceMismatch {
                     path: self.path.clone(),
                     session: name.into(),
-                    stored: stored.source,
+                    stored: stored.source.clone(),
                     given: source.into(),
+                });
+            }
+            return Ok(stored.clone());
+        }
+        let visit = sessions.iter().map(|s| s.visit + 1).max().unwrap_or(0);
+        self.conn
+            .execute(
+                "INSERT INTO revisit_sessions (name, source, visit) VALUES (?1, ?2, ?3)",
+                params![name, source, visit as i64],
+            )
+            .map_err(|e| self.sql(e))?;
+        Ok(SessionRecord { name: name.into(), source: source.into(), visit })
+    }
+
+    /// Adds the camera named `name` (e.g. `session/camera`) or returns the
+    /// stored one, which must have the same model and size; its parameters
+    /// are kept as first stored. `prior_focal_length` marks the focal length
+    /// as known (calibrated, or from EXIF), as COLMAP does.
+    pub fn ensure_camera(&mut self, name: &str, camera: &Camera, prior_focal_length: bool) -> Result<Camera> {
+        let stored: Option<CameraId> = self
+            .conn
+            .query_row("SELECT camera_id FROM revisit_cameras WHERE name = ?1", [name], |r| r.get(0))
+            .optional()
+            .map_err(|e| self.sql(e))?;
+        if let Some(camera_id) = stored {
+            let stored = self.camera(camera_id)?;
+            if (stored.model, stored.width, stored.height) != (camera.model, camera.width, camera.height) {
+                return Err(StoreError::CameraMismatch {
+                    path: self.path.clone(),
+                    name: name.into(),
+                    stored: format!("{} {}x{}", stored.model.name(), stored.width, stored.height),
+                    given: format!("{} {}x{}", camera.model.name(), camera.width, camera.height),
                 });
             }
             return Ok(stored);
@@ -160,17 +201,14 @@ impl Store {
         let tx = self.conn.transaction().map_err(sql)?;
         tx.execute(
             "INSERT INTO cameras (model, width, height, params, prior_focal_length) VALUES (?1, ?2, ?3, ?4, ?5)",
-            params![camera.model.id(), camera.width, camera.height, blob::f64s(&camera.params), calibrated],
+            params![camera.model.id(), camera.width, camera.height, blob::f64s(&camera.params), prior_focal_length],
         )
         .map_err(sql)?;
         let camera_id = CameraId::try_from(tx.last_insert_rowid()).unwrap_or(0);
-        tx.execute(
-            "INSERT INTO revisit_sessions (name, source, camera_id) VALUES (?1, ?2, ?3)",
-            params![name, source, camera_id],
-        )
-        .map_err(sql)?;
+        tx.execute("INSERT INTO revisit_cameras (name, camera_id) VALUES (?1, ?2)", params![name, camera_id])
+            .map_err(sql)?;
         tx.commit().map_err(sql)?;
-        Ok(SessionRecord { name: name.into(), source: source.into(), camera_id })
+        Ok(Camera { camera_id, ..camera.clone() })
     }
 
     pub fn camera(&self, camera_id: CameraId) -> Result<Camera> {
@@ -336,10 +374,11 @@ impl Store {
             .map_err(|e| self.sql(e))?;
         let rows = stmt
             .query_map([], |r| {
+                let kind: String = r.get(2)?;
                 Ok(PairRecord {
                     image_id1: r.get(0)?,
                     image_id2: r.get(1)?,
-                    kind: r.get(2)?,
+                    kind: PairKind::parse(&kind).unwrap_or(PairKind::Intra),
                     method: r.get(3)?,
                     roll_deg: r.get(4)?,
                     num_matches: count(r.get(5)?),
@@ -408,7 +447,7 @@ fn insert_pair(
             id as i64,
             record.image_id1.min(record.image_id2),
             record.image_id1.max(record.image_id2),
-            record.kind,
+            record.kind.as_str(),
             record.method,
             record.roll_deg,
             record.num_matches as i64,

@@ -51,7 +51,10 @@ CREATE TABLE IF NOT EXISTS revisit_settings (
 CREATE TABLE IF NOT EXISTS revisit_sessions (
     name TEXT PRIMARY KEY NOT NULL,
     source TEXT NOT NULL,
-    camera_id INTEGER NOT NULL REFERENCES cameras(camera_id));
+    visit INTEGER NOT NULL UNIQUE);
+CREATE TABLE IF NOT EXISTS revisit_cameras (
+    name TEXT PRIMARY KEY NOT NULL,
+    camera_id INTEGER NOT NULL UNIQUE REFERENCES cameras(camera_id));
 CREATE TABLE IF NOT EXISTS revisit_pairs (
     pair_id INTEGER PRIMARY KEY NOT NULL,
     image_id1 INTEGER NOT NULL,

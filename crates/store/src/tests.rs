@@ -1,4 +1,4 @@
-use revisit_core::{Camera, Features, Keypoint, TwoViewConfig, TwoViewGeometry};
+use revisit_core::{Camera, Features, Keypoint, PairKind, TwoViewConfig, TwoViewGeometry};
 
 use super::*;
 
@@ -15,9 +15,10 @@ fn features(n: usize, seed: u8) -> Features {
 fn store_with_images() -> (tempfile::TempDir, Store, BTreeMap<String, ImageId>) {
     let dir = tempfile::tempdir().unwrap();
     let mut store = Store::open(&dir.path().join("database.db")).unwrap();
-    let session = store.ensure_session("2019", "/data/2019", &Camera::default_for_size(0, 640, 480), false).unwrap();
+    store.ensure_session("2019", "/data/2019").unwrap();
+    let camera = store.ensure_camera("2019/640x480", &Camera::default_for_size(0, 640, 480), false).unwrap();
     let names = vec!["2019/a.png".to_string(), "2019/b.png".to_string()];
-    let ids = store.ensure_images(&names, session.camera_id).unwrap();
+    let ids = store.ensure_images(&names, camera.camera_id).unwrap();
     (dir, store, ids)
 }
 
@@ -42,8 +43,9 @@ fn reopening_keeps_everything_and_adds_nothing_twice() {
     store.write_features(ids["2019/a.png"], &features(3, 1)).unwrap();
     drop(store);
     let mut store = Store::open(&dir.path().join("database.db")).unwrap();
-    let session = store.ensure_session("2019", "/data/2019", &Camera::default_for_size(0, 640, 480), false).unwrap();
-    let again = store.ensure_images(&["2019/a.png".to_string()], session.camera_id).unwrap();
+    assert_eq!(store.ensure_session("2019", "/data/2019").unwrap().visit, 0);
+    let camera = store.ensure_camera("2019/640x480", &Camera::default_for_size(0, 640, 480), false).unwrap();
+    let again = store.ensure_images(&["2019/a.png".to_string()], camera.camera_id).unwrap();
     assert_eq!(again, ids);
     assert_eq!(store.sessions().unwrap().len(), 1);
     assert_eq!(store.images_with_features().unwrap().len(), 1);
@@ -52,8 +54,33 @@ fn reopening_keeps_everything_and_adds_nothing_twice() {
 #[test]
 fn a_session_cannot_change_its_source() {
     let (_dir, mut store, _) = store_with_images();
-    let err = store.ensure_session("2019", "/elsewhere", &Camera::default_for_size(0, 640, 480), false).unwrap_err();
+    let err = store.ensure_session("2019", "/elsewhere").unwrap_err();
     assert!(err.to_string().contains("session \"2019\" was added from /data/2019, not /elsewhere"), "{err}");
+}
+
+#[test]
+fn visits_keep_the_order_they_were_added_in() {
+    let (dir, mut store, _) = store_with_images();
+    store.ensure_session("2018", "/data/2018").unwrap();
+    store.ensure_session("2021", "/data/2021").unwrap();
+    drop(store);
+    let mut store = Store::open(&dir.path().join("database.db")).unwrap();
+    // Given again in another order, each keeps its place.
+    assert_eq!(store.ensure_session("2021", "/data/2021").unwrap().visit, 2);
+    let order: Vec<(String, usize)> = store.sessions().unwrap().into_iter().map(|s| (s.name, s.visit)).collect();
+    assert_eq!(order, [("2019".to_owned(), 0), ("2018".to_owned(), 1), ("2021".to_owned(), 2)]);
+}
+
+#[test]
+fn a_camera_keeps_its_model_and_size() {
+    let (_dir, mut store, _) = store_with_images();
+    let again = store.ensure_camera("2019/640x480", &Camera::default_for_size(0, 640, 480), false).unwrap();
+    assert_eq!(again.camera_id, 1);
+    let err = store.ensure_camera("2019/640x480", &Camera::default_for_size(0, 800, 600), false).unwrap_err();
+    assert!(
+        err.to_string().contains("camera 2019/640x480 is SIMPLE_RADIAL 640x480, not SIMPLE_RADIAL 800x600"),
+        "{err}"
+    );
 }
 
 #[test]
@@ -80,7 +107,7 @@ fn pairs_are_stored_in_colmap_order() {
     let record = PairRecord {
         image_id1: b,
         image_id2: a,
-        kind: "intra".into(),
+        kind: PairKind::Intra,
         method: "sift".into(),
         roll_deg: 0,
         num_matches: 2,

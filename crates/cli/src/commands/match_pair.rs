@@ -4,13 +4,13 @@ use std::path::{Path, PathBuf};
 
 use anyhow::{Context, Result};
 use image::{Rgb, RgbImage};
-use revisit_core::Roll;
-use revisit_features::SiftOptions;
-use revisit_matching::{match_descriptors, verify, MatchOptions, RollSearch, VerifyOptions};
+use revisit_core::{CrossKey, PairKind, Roll};
+use revisit_matching::{match_descriptors, match_learned_pair, verify, CrossOptions, MatchOptions, RollSearch};
 use revisit_pipeline::learned::LearnedMethod;
-
-use crate::commands::models::ModelArgs;
+use revisit_pipeline::options::FeatureOptions;
 use serde::Serialize;
+
+use crate::commands::models::ToolArgs;
 
 #[derive(Clone, Copy, clap::ValueEnum)]
 pub enum MethodArg {
@@ -34,7 +34,8 @@ impl MethodArg {
 
 /// Match two images and print the verified matches: which roll of the second
 /// image won, how many inliers, and optionally every match as JSON and a
-/// drawing. Coordinates are pixels in each image's own, unrotated frame, with
+/// drawing. A learned pair is judged by the same rule as in `reconstruct`
+/// (the roll must stand out, and at least 30 inliers must verify). Coordinates are pixels in each image's own, unrotated frame, with
 /// (0, 0) at the top-left corner of the top-left pixel (COLMAP's convention).
 #[derive(clap::Args)]
 pub struct Args {
@@ -63,7 +64,7 @@ pub struct Args {
     #[arg(long, default_value_t = 0)]
     seed: u64,
     #[command(flatten)]
-    models: ModelArgs,
+    tools: ToolArgs,
 }
 
 #[derive(Serialize)]
@@ -74,62 +75,72 @@ struct Output {
 }
 
 fn load(path: &Path) -> Result<RgbImage> {
-    Ok(image::open(path).with_context(|| format!("{}: unreadable image", path.display()))?.to_rgb8())
+    Ok(revisit_pipeline::images::read(path)?.to_rgb8())
 }
 
 pub fn run(args: Args) -> Result<()> {
     let a = load(&args.image_a)?;
     let b = load(&args.image_b)?;
-    let verify_options = VerifyOptions { seed: args.seed, ..VerifyOptions::default() };
     let (roll, matches) = match args.method.learned() {
         None => {
-            let sift = SiftOptions::default();
+            let options = FeatureOptions::default();
             let extract = |image: &RgbImage, path: &Path| {
-                revisit_features::extract_sift(&sift, &image::DynamicImage::ImageRgb8(image.clone()).to_luma8())
+                revisit_pipeline::stages::sift_features(&options, &image::DynamicImage::ImageRgb8(image.clone()))
+                    .map_err(anyhow::Error::msg)
                     .with_context(|| path.display().to_string())
             };
             let (fa, fb) = (extract(&a, &args.image_a)?, extract(&b, &args.image_b)?);
             let matches = match_descriptors(&fa, &fb, &MatchOptions::default());
+            let verify_options = revisit_matching::VerifyOptions { seed: args.seed, ..Default::default() };
             let geometry = verify(&fa.keypoints, &fb.keypoints, &matches, &verify_options);
             let points = geometry
                 .inlier_matches
                 .iter()
-                .map(|&[i, j]| {
-                    let (p, q) = (fa.keypoints[i as usize], fb.keypoints[j as usize]);
-                    [p.x, p.y, q.x, q.y]
+                .filter_map(|&[i, j]| {
+                    let (p, q) = (fa.keypoints.get(i as usize)?, fb.keypoints.get(j as usize)?);
+                    Some([p.x, p.y, q.x, q.y])
                 })
                 .collect::<Vec<_>>();
             (Roll::R0, points)
         }
         Some(method) => {
-            let (_, mut learned) = args.models.open(method)?;
-            let search = match (args.roll_search, args.full_search) {
-                (false, _) => RollSearch::Off,
-                (true, false) => RollSearch::DEFAULT,
-                (true, true) => RollSearch::Full,
+            let (_, mut learned) = args.tools.open(method)?;
+            let mut options = CrossOptions {
+                roll_search: match (args.roll_search, args.full_search) {
+                    (false, _) => RollSearch::Off,
+                    (true, false) => RollSearch::DEFAULT,
+                    (true, true) => RollSearch::Full,
+                },
+                ..CrossOptions::default()
             };
+            options.verify.seed = args.seed;
             let fa = learned.extract(&a, Roll::R0).with_context(|| args.image_a.display().to_string())?;
-            let fb: Vec<(Roll, _)> = search
+            let fb: Vec<(Roll, _)> = options
+                .roll_search
                 .rolls()
                 .iter()
                 .map(|&roll| Ok((roll, learned.extract(&b, roll).with_context(|| args.image_b.display().to_string())?)))
                 .collect::<Result<_>>()?;
-            let result = learned.match_pair(&fa, &fb, search, &verify_options)?;
-            let rolled = &fb.iter().find(|(r, _)| *r == result.roll).map(|(_, f)| f).context("the chosen roll")?;
-            let kb = revisit_matching::roll::unrolled_keypoints(rolled, result.roll);
-            for (roll, inliers) in &result.inliers_by_roll {
+            let pair = match_learned_pair(&mut learned.matcher, (&fa, &[]), (&fb, &[]), PairKind::Cross, &options)?;
+            for (roll, inliers) in &pair.inliers_by_roll {
                 tracing::info!("roll {:>3}: {inliers} inliers", roll.degrees());
             }
-            let points = result
-                .geometry
-                .inlier_matches
+            if !pair.accepted() {
+                println!("rejected: the roll does not stand out, or fewer than {} inliers", options.verify.min_inliers);
+            }
+            let at = |side: usize, key: CrossKey| match key {
+                CrossKey::Learned(l) => pair.positions[side].get(l as usize).copied(),
+                CrossKey::Own(_) => None,
+            };
+            let points = pair
+                .inliers
                 .iter()
-                .map(|&[i, j]| {
-                    let (p, q) = (fa.keypoints[i as usize], kb[j as usize]);
-                    [p[0], p[1], q.x, q.y]
+                .filter_map(|&[ka, kb]| {
+                    let (p, q) = (at(0, ka)?, at(1, kb)?);
+                    Some([p[0], p[1], q[0], q[1]])
                 })
                 .collect::<Vec<_>>();
-            (result.roll, points)
+            (pair.roll, points)
         }
     };
     println!("roll: {} degrees", roll.degrees());

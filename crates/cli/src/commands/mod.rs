@@ -1,4 +1,5 @@
 pub mod bench;
+pub mod doctor;
 pub mod eval;
 pub mod match_pair;
 pub mod models;

@@ -1,64 +1,55 @@
-//! Options shared by the commands that run learned models.
+//! Options shared by the commands that run COLMAP or the learned models:
+//! where the tools are, and the named methods as command-line values.
 
 use std::path::PathBuf;
 
 use anyhow::{Context, Result};
-use revisit_pipeline::learned::{find_models, Learned, LearnedMethod};
+use clap::builder::{PossibleValue, PossibleValuesParser, TypedValueParser};
+use revisit_pipeline::learned::{Learned, LearnedMethod};
+use revisit_pipeline::locate::Tools;
+use revisit_pipeline::CrossStrategy;
 
-/// A learned matcher by name.
-#[derive(Clone, Copy, clap::ValueEnum)]
-pub enum LearnedArg {
-    /// ALIKED + LightGlue: the most robust across years (1024 keypoints).
-    AlikedLightglue,
-    /// XFeat + LighterGlue: faster features, up to 4096 keypoints.
-    XfeatLighterglue,
+/// `--cross`'s values, with their help, from the pipeline's one list.
+pub fn cross_strategies() -> impl TypedValueParser<Value = CrossStrategy> {
+    let values = CrossStrategy::ALL.map(|s| PossibleValue::new(s.name()).help(s.description()));
+    PossibleValuesParser::new(values).map(|name| CrossStrategy::from_name(&name).unwrap_or_default())
 }
 
-impl LearnedArg {
-    pub fn method(self) -> LearnedMethod {
-        match self {
-            LearnedArg::AlikedLightglue => LearnedMethod::AlikedLightglue,
-            LearnedArg::XfeatLighterglue => LearnedMethod::XfeatLighterglue,
-        }
-    }
+/// `--learned`'s values, with their help, from the pipeline's one list.
+pub fn learned_methods() -> impl TypedValueParser<Value = LearnedMethod> {
+    let values = LearnedMethod::ALL.map(|m| PossibleValue::new(m.name()).help(m.description()));
+    PossibleValuesParser::new(values).map(|name| LearnedMethod::from_name(&name).unwrap_or_default())
 }
 
-/// Where the learned models and ONNX Runtime are found (shared by commands).
-#[derive(clap::Args, Clone)]
-pub struct ModelArgs {
-    /// Folder of the ONNX model files (default: $REVISIT_MODELS, else models/
-    /// in the current folder or the checkout). scripts/get-models.sh makes them.
+/// Where Python (pycolmap), ONNX Runtime and the learned models are found.
+/// Each is searched in this order: the option, its environment variable,
+/// then the project's own (`.venv`, `models/`) in the current folder and in
+/// every folder above the executable. `revisit doctor` shows what is found.
+#[derive(clap::Args, Clone, Debug, Default)]
+pub struct ToolArgs {
+    /// Folder of the ONNX model files (default: $REVISIT_MODELS, else models/).
+    /// scripts/get-models.sh makes them.
     #[arg(long, value_name = "DIR")]
     pub models: Option<PathBuf>,
-    /// The ONNX Runtime library (default: $ORT_DYLIB_PATH, else the one in the
-    /// checkout's .venv, installed by scripts/setup.sh).
+    /// The ONNX Runtime library (default: $ORT_DYLIB_PATH, else the one in
+    /// .venv, installed by scripts/setup.sh).
     #[arg(long, value_name = "PATH")]
     pub onnxruntime: Option<PathBuf>,
+    /// Python with pycolmap (default: $REVISIT_PYTHON, else .venv/bin/python).
+    #[arg(long, value_name = "PATH")]
+    pub python: Option<PathBuf>,
 }
 
-impl ModelArgs {
-    /// These options as command-line words, to hand to another command.
-    pub fn to_words(&self) -> Vec<String> {
-        let mut words = Vec::new();
-        if let Some(dir) = &self.models {
-            words.extend(["--models".to_owned(), dir.display().to_string()]);
-        }
-        if let Some(path) = &self.onnxruntime {
-            words.extend(["--onnxruntime".to_owned(), path.display().to_string()]);
-        }
-        words
-    }
-
-    /// Loads ONNX Runtime.
-    pub fn runtime(&self) -> Result<revisit_onnx::Runtime> {
-        revisit_onnx::Runtime::load(self.onnxruntime.as_deref(), 0).context("--onnxruntime")
+impl ToolArgs {
+    pub fn tools(&self) -> Tools {
+        Tools { python: self.python.clone(), onnxruntime: self.onnxruntime.clone(), models: self.models.clone() }
     }
 
     /// Loads ONNX Runtime and opens `method`'s models.
     pub fn open(&self, method: LearnedMethod) -> Result<(revisit_onnx::Runtime, Learned)> {
-        let runtime = self.runtime()?;
-        let models = find_models(self.models.as_deref());
-        let learned = Learned::open(&runtime, &models, method).context("--models")?;
+        let tools = self.tools();
+        let runtime = tools.onnxruntime(0).context("--onnxruntime")?;
+        let learned = Learned::open(&runtime, &tools.models(), method).context("--models")?;
         Ok((runtime, learned))
     }
 }

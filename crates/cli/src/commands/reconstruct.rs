@@ -1,57 +1,22 @@
-//! `revisit reconstruct`: sessions in, one joint COLMAP reconstruction out.
+//! `revisit reconstruct`: the command line over `revisit_pipeline::Workspace`.
 
-use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
-use std::time::Instant;
 
-use anyhow::{bail, Context, Result};
-use revisit_colmap::{Engine, MapperOptions, PlyColors};
-use revisit_core::{Camera, CameraModel};
-use revisit_features::SiftOptions;
+use anyhow::{Context, Result};
+use revisit_colmap::{Engine, PlyColors};
+use revisit_core::PairKind;
 use revisit_matching::RollSearch;
-use revisit_matching::{MatchOptions, PairOptions, VerifyOptions};
-use revisit_pipeline::cross::{self, CrossOptions, LearnedPairs, PlaceSource};
-use revisit_pipeline::export::{self, PairReport, SessionReport, REGISTERED_RULE};
-use revisit_pipeline::ingest::{self, SessionImages, SessionSpec};
-use revisit_pipeline::mapping::{self, MappingOutcome};
-use revisit_pipeline::{CrossStrategy, StageCounts};
-use revisit_places::CandidateOptions;
-use revisit_store::Store;
-use serde::Serialize;
+use revisit_pipeline::ingest::{self, SessionSpec};
+use revisit_pipeline::learned::LearnedMethod;
+use revisit_pipeline::options::{CameraSpec, PlaceSource, ReconstructOptions};
+use revisit_pipeline::{CrossStrategy, Report, Workspace};
 
-use crate::commands::models::{LearnedArg, ModelArgs};
+use crate::commands::models::{cross_strategies, learned_methods, ToolArgs};
 use crate::progress::Bars;
-
-#[derive(Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
-pub enum CrossArg {
-    /// Intra-session pairs only: visits are not linked.
-    None,
-    /// Every cross-session pair with SIFT: the classic joint baseline.
-    Sift,
-    /// The learned matcher on every pair, within and across sessions (slowest).
-    LearnedAll,
-    /// The learned matcher on every cross-session pair; SIFT within sessions.
-    LearnedCross,
-    /// The learned matcher on place-recognition candidates only; SIFT within sessions.
-    Vpr,
-}
-
-impl CrossArg {
-    /// The name on the command line.
-    pub fn name(self) -> &'static str {
-        match self {
-            CrossArg::None => "none",
-            CrossArg::Sift => "sift",
-            CrossArg::LearnedAll => "learned-all",
-            CrossArg::LearnedCross => "learned-cross",
-            CrossArg::Vpr => "vpr",
-        }
-    }
-}
 
 #[derive(Clone, Copy, clap::ValueEnum)]
 enum RollSearchArg {
-    /// Decide the roll on the 256 strongest keypoints per image, then match
+    /// Decide the roll on the strongest keypoints of each image, then match
     /// once in full (in full at every roll if no roll wins by --roll-margin).
     Probe,
     /// Match in full at every roll (4x the matching cost).
@@ -60,42 +25,21 @@ enum RollSearchArg {
     Off,
 }
 
-#[derive(Clone, Copy, clap::ValueEnum)]
-enum MapperArg {
-    /// COLMAP's incremental SfM; extends the previous model when sessions are added.
-    Incremental,
-    /// GLOMAP's global SfM (rebuilds from scratch).
-    Global,
-}
-
-#[derive(Clone, Copy, clap::ValueEnum)]
-enum PlyColorsArg {
-    /// The points' own colours.
-    Rgb,
-    /// One colour per session (the session of the first image seeing the point).
-    Session,
-}
-
-/// A calibrated camera: MODEL:P1,P2,... in COLMAP's parameter order.
+/// A calibrated camera for some cameras: `[SESSION[/CAMERA]=]MODEL:PARAMS`.
 #[derive(Clone, Debug)]
 struct CameraArg {
-    model: CameraModel,
-    params: Vec<f64>,
+    key: String,
+    spec: CameraSpec,
 }
 
 impl std::str::FromStr for CameraArg {
     type Err = String;
     fn from_str(s: &str) -> Result<Self, String> {
-        let (model, params) =
-            s.split_once(':').ok_or_else(|| format!("{s:?} is not MODEL:P1,P2,... (e.g. PINHOLE:512,512,320,240)"))?;
-        let model = CameraModel::from_name(model.trim()).map_err(|e| e.to_string())?;
-        let params = params
-            .split(',')
-            .map(|p| p.trim().parse::<f64>().map_err(|_| format!("{p:?} in {s:?} is not a number")))
-            .collect::<Result<Vec<_>, _>>()?;
-        // Checks the parameter count for the model.
-        Camera::new(0, model, 1, 1, params.clone()).map_err(|e| e.to_string())?;
-        Ok(CameraArg { model, params })
+        let (key, spec) = match s.split_once('=') {
+            Some((key, spec)) => (key.to_owned(), spec),
+            None => (String::new(), s),
+        };
+        Ok(CameraArg { key, spec: spec.parse()? })
     }
 }
 
@@ -117,29 +61,32 @@ impl std::str::FromStr for Region {
     }
 }
 
-/// Reconstruct one or more sessions (visits of one site) jointly: SIFT features,
-/// verified matching within and across sessions, and ONE COLMAP mapping run.
+/// Reconstruct one or more sessions (visits of one site) jointly: SIFT within
+/// visits, learned matching across them, and ONE COLMAP mapping run.
 ///
 /// Outputs in WORK: database.db (the store, a COLMAP database), model/ (COLMAP
 /// binary model; model/1, model/2, ... largest first if COLMAP made several),
 /// points.ply, poses.csv (cam_from_world of the chosen model's images) and
 /// report.json. Re-running the same command resumes: finished features, pairs
-/// and an up-to-date model are reused, never recomputed.
+/// and an up-to-date model are reused, never recomputed. Ctrl-C (or SIGTERM)
+/// stops after the image or pair in flight; running again resumes.
 #[derive(clap::Args)]
 pub struct Args {
-    /// A session (one visit) as NAME=DIR; DIR holds its images (.png, .jpg), whose
-    /// sorted file names give the time order. Repeat for every visit.
+    /// A session (one visit) as NAME=DIR. DIR holds its images (.png, .jpg),
+    /// whose sorted file names give the time order: directly (one camera per
+    /// image size) or in one sub-folder per camera (e.g. left/, right/).
+    /// Repeat for every visit; a new visit comes after those already stored.
     #[arg(long = "session", value_name = "NAME=DIR", required = true)]
     sessions: Vec<SessionSpec>,
     /// Work folder for the store and every output (created if missing).
     #[arg(long, value_name = "WORK")]
     out: PathBuf,
     /// How images of different sessions are paired and matched.
-    #[arg(long, value_enum, default_value = "vpr")]
-    cross: CrossArg,
-    /// The learned matcher for cross-session pairs.
-    #[arg(long, value_enum, default_value = "aliked-lightglue")]
-    learned: LearnedArg,
+    #[arg(long, default_value = "vpr", value_parser = cross_strategies())]
+    cross: CrossStrategy,
+    /// The learned matcher.
+    #[arg(long, default_value = "aliked-lightglue", value_parser = learned_methods())]
+    learned: LearnedMethod,
     /// How the roll (0/90/180/270 degrees) of the second image of a
     /// cross-session pair is chosen.
     #[arg(long, value_enum, default_value = "probe")]
@@ -159,10 +106,10 @@ pub struct Args {
     vpr_model: Option<PathBuf>,
     /// A learned keypoint this close to a SIFT keypoint is matched as that
     /// SIFT keypoint, which links cross-session matches to each session's tracks.
-    #[arg(long, default_value_t = 1.5, value_name = "PX")]
+    #[arg(long, default_value_t = revisit_matching::cross::DEFAULT_ANCHOR_RADIUS_PX, value_name = "PX")]
     anchor_radius: f32,
     /// Fewest verified inliers of a learned (cross-visit) pair.
-    #[arg(long, default_value_t = cross::CROSS_MIN_INLIERS, value_name = "N")]
+    #[arg(long, default_value_t = revisit_matching::CROSS_MIN_INLIERS, value_name = "N")]
     cross_min_inliers: usize,
     /// Largest epipolar error of a learned (cross-visit) inlier, pixels.
     #[arg(long, default_value_t = 4.0, value_name = "PX")]
@@ -171,10 +118,8 @@ pub struct Args {
     /// times those of the runner-up roll (chance matches find about as many
     /// at every roll); a probe that no roll wins by R falls back to the full
     /// search. 1 turns the check off.
-    #[arg(long, default_value_t = 1.5, value_name = "R")]
+    #[arg(long, default_value_t = revisit_matching::roll::DEFAULT_ROLL_MARGIN, value_name = "R")]
     roll_margin: f32,
-    #[command(flatten)]
-    models: ModelArgs,
     /// Largest number of SIFT features per image (the strongest are kept).
     #[arg(long, default_value_t = 4096, value_name = "N")]
     max_features: usize,
@@ -182,12 +127,19 @@ pub struct Args {
     /// (keypoints are reported in full-resolution pixels).
     #[arg(long, default_value_t = 3200, value_name = "PX")]
     max_image_size: u32,
-    /// A calibrated camera for every session, as MODEL:PARAMS in COLMAP's
-    /// order (e.g. PINHOLE:fx,fy,cx,cy or OPENCV:fx,fy,cx,cy,k1,k2,p1,p2);
-    /// its intrinsics are then held fixed. Default: estimated per session
-    /// (self-calibration, weak for flat seabeds and few images).
-    #[arg(long, value_name = "MODEL:PARAMS")]
-    camera: Option<CameraArg>,
+    /// A calibrated camera, [SESSION[/CAMERA]=]MODEL:PARAMS in COLMAP's
+    /// parameter order (e.g. PINHOLE:fx,fy,cx,cy or
+    /// OPENCV:fx,fy,cx,cy,k1,k2,p1,p2); its intrinsics are held fixed.
+    /// Without SESSION it applies to every camera; the most specific wins.
+    /// Repeatable. Cameras without one are self-calibrated, starting from
+    /// the EXIF focal length when the images carry one.
+    #[arg(long = "camera", value_name = "[SESSION[/CAMERA]=]MODEL:PARAMS")]
+    cameras: Vec<CameraArg>,
+    /// Visits flown with the same camera share its intrinsics: a camera of
+    /// one name and size is one COLMAP camera across visits, refined jointly
+    /// from all their images (stronger self-calibration than per visit).
+    #[arg(long)]
+    shared_camera: bool,
     /// Upright SIFT (no orientation): only for cameras that never roll.
     #[arg(long)]
     upright: bool,
@@ -205,309 +157,108 @@ pub struct Args {
     /// Long sessions: every N-th image is also matched with every other N-th.
     #[arg(long, default_value_t = 5, value_name = "N")]
     loop_period: usize,
-    /// The COLMAP mapper.
+    /// The COLMAP mapper: incremental (extends the previous model when
+    /// sessions are added) or global (GLOMAP; rebuilds from scratch).
     #[arg(long, value_enum, default_value = "incremental")]
     mapper: MapperArg,
     /// Seed of every random choice (RANSAC, COLMAP).
     #[arg(long, default_value_t = 0)]
     seed: u64,
-    /// Python with pycolmap (default: $REVISIT_PYTHON, else the checkout's .venv).
-    #[arg(long, value_name = "PATH")]
-    python: Option<PathBuf>,
-    /// How points.ply is coloured.
+    /// How points.ply is coloured: rgb (the points' own colours) or session
+    /// (one colour per session).
     #[arg(long, value_enum, default_value = "rgb")]
     ply_colors: PlyColorsArg,
+    #[command(flatten)]
+    tools: ToolArgs,
 }
 
-#[derive(Serialize)]
-struct Report {
-    sessions: BTreeMap<String, SessionReport>,
-    models: usize,
-    model_sizes: Vec<usize>,
-    chosen_model: Option<PathBuf>,
-    registered_rule: &'static str,
-    pairs: BTreeMap<String, PairReport>,
-    /// Sessions (of several) with fewer than half their images in the chosen
-    /// model: they could not be linked to the others.
-    unlinked_sessions: Vec<String>,
-    /// Verified cross-session pairs by the roll of their second image (degrees).
-    rolls: BTreeMap<u32, usize>,
-    features: StageCounts,
-    matching: StageCounts,
-    cross: CrossReport,
-    mapping: MappingReport,
-    seconds: BTreeMap<&'static str, f64>,
+#[derive(Clone, Copy, clap::ValueEnum)]
+enum MapperArg {
+    Incremental,
+    Global,
 }
 
-#[derive(Default, Serialize)]
-struct CrossReport {
-    learned_features: StageCounts,
-    places: Option<StageCounts>,
-    learned_matching: StageCounts,
+#[derive(Clone, Copy, clap::ValueEnum)]
+enum PlyColorsArg {
+    Rgb,
+    Session,
 }
 
-#[derive(Serialize)]
-struct MappingReport {
-    reused: bool,
-    extended: bool,
-    mean_reprojection_error_px: Option<f64>,
-}
-
-fn timed<T>(
-    seconds: &mut BTreeMap<&'static str, f64>,
-    stage: &'static str,
-    f: impl FnOnce() -> Result<T>,
-) -> Result<T> {
-    let start = Instant::now();
-    let out = f()?;
-    seconds.insert(stage, start.elapsed().as_secs_f64());
-    Ok(out)
-}
-
-/// `WORK/images/<session>` links to each session's folder, so that COLMAP
-/// finds `session/file` under one root.
-fn link_images(work: &Path, sessions: &[SessionImages]) -> Result<PathBuf> {
-    let root = work.join("images");
-    std::fs::create_dir_all(&root).with_context(|| format!("creating {}", root.display()))?;
-    for session in sessions {
-        let link = root.join(&session.name);
-        if std::fs::read_link(&link).is_ok_and(|target| target == session.dir) {
-            continue;
-        }
-        if link.symlink_metadata().is_ok() {
-            std::fs::remove_file(&link).with_context(|| format!("replacing {}", link.display()))?;
-        }
-        std::os::unix::fs::symlink(&session.dir, &link).with_context(|| format!("linking {}", link.display()))?;
-    }
-    Ok(root)
-}
-
-pub fn run(args: Args) -> Result<()> {
-    let mut seconds = BTreeMap::new();
-    let sessions = timed(&mut seconds, "ingest", || {
-        ingest::check_unique(&args.sessions).context("--session")?;
-        args.sessions
-            .iter()
-            .map(|spec| ingest::scan_session(spec).with_context(|| format!("--session {}", spec.name)))
-            .collect::<Result<Vec<_>>>()
-    })?;
-    let python = revisit_colmap::find_python(args.python.as_deref()).context("--python")?;
-    let sift = SiftOptions {
-        max_num_features: args.max_features,
-        upright: args.upright,
-        ignore_regions_px: args.ignore_regions.iter().map(|r| r.0).collect(),
-        ..SiftOptions::default()
-    };
-    sift.check().context("--max-features")?;
-    let pair_options = PairOptions {
-        exhaustive_max_images: args.exhaustive_max_images,
-        window: args.window,
-        loop_period: args.loop_period,
-    };
-    pair_options.check().context("--window/--loop-period")?;
-    let sift_cross = if args.cross == CrossArg::Sift { CrossStrategy::Sift } else { CrossStrategy::None };
-    let learned_pairs = match args.cross {
-        CrossArg::None | CrossArg::Sift => None,
-        CrossArg::LearnedAll => Some(LearnedPairs::All),
-        CrossArg::LearnedCross => Some(LearnedPairs::Cross),
-        CrossArg::Vpr => Some(LearnedPairs::Places),
-    }
-    .filter(|_| sessions.len() >= 2);
-    let verify_options = VerifyOptions { seed: args.seed, ..VerifyOptions::default() };
-    let cross_options = CrossOptions {
-        roll_search: match args.roll_search {
-            RollSearchArg::Probe => RollSearch::Probe { budget: 256, margin: args.roll_margin },
+impl Args {
+    /// The pipeline's options from the arguments (checked by the pipeline).
+    fn options(&self) -> ReconstructOptions {
+        let mut options = ReconstructOptions { cross: self.cross, learned: self.learned, ..Default::default() };
+        let sift = &mut options.features.sift;
+        sift.max_num_features = self.max_features;
+        sift.upright = self.upright;
+        sift.ignore_regions_px = self.ignore_regions.iter().map(|r| r.0).collect();
+        options.features.max_image_size_px = self.max_image_size;
+        options.pairs.exhaustive_max_images = self.exhaustive_max_images;
+        options.pairs.window = self.window;
+        options.pairs.loop_period = self.loop_period;
+        let cross = &mut options.learned_matching;
+        cross.roll_search = match self.roll_search {
+            RollSearchArg::Probe => RollSearch::DEFAULT,
             RollSearchArg::Full => RollSearch::Full,
             RollSearchArg::Off => RollSearch::Off,
-        },
-        places: match &args.vpr_model {
-            Some(path) => PlaceSource::Onnx(path.clone()),
-            None => PlaceSource::Vlad { clusters: 64 },
-        },
-        candidates: CandidateOptions { top_k: args.vpr_top_k, max_distance: args.vpr_max_distance },
-        anchor_radius_px: args.anchor_radius,
-        verify: VerifyOptions {
-            min_inliers: args.cross_min_inliers,
-            max_error_px: args.cross_max_error,
-            ..verify_options.clone()
-        },
-        roll_margin: args.roll_margin,
-    };
-    cross_options.verify.check().context("--cross-min-inliers/--cross-max-error")?;
-    if args.roll_margin.is_nan() || args.roll_margin < 1.0 {
-        bail!("--roll-margin must be at least 1, not {}", args.roll_margin);
-    }
-    if args.vpr_top_k == 0 {
-        bail!("--vpr-top-k must be at least 1");
-    }
-    // Open the learned models before any work, so a missing model fails fast.
-    let mut learned = match learned_pairs {
-        Some(_) => Some(args.models.open(args.learned.method())?),
-        None => None,
-    };
-    let mapper_options = MapperOptions {
-        engine: match args.mapper {
+        };
+        cross.roll_margin = self.roll_margin;
+        cross.anchor_radius_px = self.anchor_radius;
+        cross.verify.min_inliers = self.cross_min_inliers;
+        cross.verify.max_error_px = self.cross_max_error;
+        options.places.candidates.top_k = self.vpr_top_k;
+        options.places.candidates.max_distance = self.vpr_max_distance;
+        if let Some(model) = &self.vpr_model {
+            options.places.source = PlaceSource::Onnx(model.clone());
+        }
+        options.cameras.calibrated = self.cameras.iter().map(|c| (c.key.clone(), c.spec.clone())).collect();
+        options.cameras.shared = self.shared_camera;
+        options.mapper.engine = match self.mapper {
             MapperArg::Incremental => Engine::Incremental,
             MapperArg::Global => Engine::Global,
-        },
-        seed: args.seed,
-        refine_intrinsics: args.camera.is_none(),
-        ..MapperOptions::default()
-    };
-
-    let work = &args.out;
-    std::fs::create_dir_all(work).with_context(|| format!("--out {}", work.display()))?;
-    let database = work.join("database.db");
-    let mut store = Store::open(&database)?;
-    let feature_setting = serde_json::json!({ "sift": sift, "max_image_size_px": args.max_image_size }).to_string();
-    store.pin_setting("features", &feature_setting).context("--max-features/--upright/--ignore-region")?;
-
-    let mut image_ids = BTreeMap::new();
-    let camera_setting = args.camera.as_ref().map_or("estimated".to_owned(), |c| format!("{:?}", c));
-    store.pin_setting("camera", &camera_setting).context("--camera")?;
-    for session in &sessions {
-        let camera = match &args.camera {
-            Some(c) => Camera::new(0, c.model, session.width, session.height, c.params.clone())
-                .with_context(|| format!("--camera for session {}", session.name))?,
-            None => Camera::default_for_size(0, session.width, session.height),
         };
-        let source = session.dir.display().to_string();
-        let record = store
-            .ensure_session(&session.name, &source, &camera, args.camera.is_some())
-            .with_context(|| format!("--session {}", session.name))?;
-        let stored = store.camera(record.camera_id)?;
-        if (stored.width, stored.height) != (session.width, session.height) {
-            bail!(
-                "--session {}: images are now {}x{} but the store has them as {}x{}",
-                session.name,
-                session.width,
-                session.height,
-                stored.width,
-                stored.height
-            );
-        }
-        image_ids.extend(store.ensure_images(&session.image_names(), record.camera_id)?);
-    }
-    image_ids.retain(|name, _| sessions.iter().any(|s| name.starts_with(&format!("{}/", s.name))));
-    let image_root = link_images(work, &sessions)?;
-
-    let bars = Bars::default();
-    let features = timed(&mut seconds, "features", || {
-        Ok(revisit_pipeline::extract_features(&mut store, &sessions, &image_ids, &sift, args.max_image_size, &bars)?)
-    })?;
-    // Learned features come before matching within visits: their keypoints
-    // join the SIFT ones there, so cross-visit tracks continue inside visits.
-    let mut cross_report = CrossReport::default();
-    let visits = cross::visits(&sessions, &image_ids);
-    let search = cross_options.roll_search;
-    let learned_keypoints = match learned.as_mut().filter(|_| learned_pairs.is_some()) {
-        Some((_, learned)) => Some(timed(&mut seconds, "learned_features", || {
-            cross_report.learned_features = cross::extract_learned(&mut store, learned, &visits, search, &bars)?;
-            Ok(cross::register_learned_keypoints(&mut store, learned.method.name(), &visits)?)
-        })?),
-        None => None,
-    };
-    let matching = timed(&mut seconds, "matching", || {
-        let pairs = match learned_pairs {
-            Some(LearnedPairs::All) => Vec::new(),
-            _ => revisit_pipeline::plan_pairs(&sessions, &image_ids, sift_cross, &pair_options),
-        };
-        let loaded = revisit_pipeline::load_features(&store, image_ids.values().copied())?;
-        Ok(revisit_pipeline::match_pairs(
-            &mut store,
-            &pairs,
-            &loaded,
-            learned_keypoints.as_ref(),
-            &MatchOptions::default(),
-            &verify_options,
-            &bars,
-        )?)
-    })?;
-    drop(learned_keypoints);
-    if let (Some(which), Some((runtime, learned))) = (learned_pairs, learned.as_mut()) {
-        let places = match which {
-            LearnedPairs::Places => Some(timed(&mut seconds, "places", || {
-                let method = learned.method.name();
-                Ok(cross::describe_places(&mut store, method, &cross_options.places, runtime, &visits, search, &bars)?)
-            })?),
-            _ => None,
-        };
-        cross_report.places = places.as_ref().map(|p| p.counts);
-        cross_report.learned_matching = timed(&mut seconds, "learned_matching", || {
-            let pairs = cross::plan_learned_pairs(which, &visits, places.as_ref(), &cross_options.candidates);
-            Ok(cross::match_learned_pairs(&mut store, learned, &pairs, &cross_options, &bars)?)
-        })?;
-    }
-    let records = store.pair_records()?;
-    let inputs = {
-        let inliers: usize = records.iter().map(|r| r.num_inliers).sum();
-        let names: Vec<&String> = image_ids.keys().collect();
-        format!("{} images {:?}; {} pairs, {inliers} inliers; {mapper_options:?}", names.len(), names, records.len())
-    };
-    let outcome: MappingOutcome = timed(&mut seconds, "mapping", || {
-        Ok(mapping::map(&python, &database, &image_root, work, &inputs, &mapper_options)?)
-    })?;
-
-    let chosen = export::chosen_model(&outcome.models, &sessions);
-    let report_sessions = export::session_reports(&sessions, &outcome.models, chosen);
-    timed(&mut seconds, "export", || {
-        let Some(model) = chosen.and_then(|k| outcome.models.get(k)) else {
-            tracing::warn!("COLMAP registered no model: no poses.csv or points.ply");
-            return Ok(());
-        };
-        let reconstruction = revisit_colmap::read_model(&model.path)?;
-        let poses = work.join("poses.csv");
-        std::fs::write(&poses, export::poses_csv(&reconstruction)).with_context(|| poses.display().to_string())?;
-        let colors = match args.ply_colors {
+        options.ply_colors = match self.ply_colors {
             PlyColorsArg::Rgb => PlyColors::Rgb,
             PlyColorsArg::Session => PlyColors::BySession,
         };
-        revisit_colmap::write_ply(&reconstruction, &work.join("points.ply"), colors)?;
-        Ok(())
-    })?;
+        options.with_seed(self.seed)
+    }
+}
 
-    let report = Report {
-        unlinked_sessions: report_sessions_unlinked(&report_sessions),
-        sessions: report_sessions,
-        models: outcome.models.len(),
-        model_sizes: outcome.models.iter().map(|m| m.registered_images.len()).collect(),
-        chosen_model: chosen.and_then(|k| outcome.models.get(k)).map(|m| m.path.clone()),
-        registered_rule: REGISTERED_RULE,
-        rolls: export::roll_histogram(&records),
-        pairs: export::pair_reports(&records),
-        features,
-        matching,
-        cross: cross_report,
-        mapping: MappingReport {
-            reused: outcome.reused,
-            extended: outcome.extended,
-            mean_reprojection_error_px: chosen
-                .and_then(|k| outcome.models.get(k))
-                .map(|m| m.mean_reprojection_error_px),
-        },
-        seconds,
-    };
-    let report_path = work.join("report.json");
-    std::fs::write(&report_path, serde_json::to_string_pretty(&report)?)
-        .with_context(|| report_path.display().to_string())?;
-    print_summary(&report, work);
+/// Runs a reconstruction with progress bars; `cancel` stops it between items.
+pub fn reconstruct(args: &Args, cancel: &revisit_pipeline::Cancel) -> Result<Report> {
+    ingest::check_unique(&args.sessions).context("--session")?;
+    let sessions = args
+        .sessions
+        .iter()
+        .map(|spec| ingest::scan_session(spec).with_context(|| format!("--session {}", spec.name)))
+        .collect::<Result<Vec<_>>>()?;
+    let mut workspace = Workspace::open(&args.out, args.options(), args.tools.tools())
+        .with_context(|| format!("--out {}", args.out.display()))?;
+    for session in sessions {
+        let name = session.name.clone();
+        workspace.add_session(session).with_context(|| format!("--session {name}"))?;
+    }
+    Ok(workspace.run(&Bars::default(), cancel)?)
+}
+
+pub fn run(args: Args) -> Result<()> {
+    let cancel = crate::signals::cancel_on_signals()?;
+    let report = reconstruct(&args, &cancel)?;
+    print_summary(&report, &args.out);
     Ok(())
 }
 
-fn report_sessions_unlinked(sessions: &BTreeMap<String, SessionReport>) -> Vec<String> {
-    if sessions.len() < 2 {
-        return Vec::new();
-    }
-    sessions.iter().filter(|(_, s)| 2 * s.registered < s.images).map(|(name, _)| name.clone()).collect()
-}
-
 fn print_summary(report: &Report, work: &Path) {
-    println!("{:<16} {:>8} {:>11}", "session", "images", "registered");
+    println!("{:<16} {:>6} {:>8} {:>11}  cameras", "session", "visit", "images", "registered");
     for (name, s) in &report.sessions {
-        println!("{name:<16} {:>8} {:>11}", s.images, s.registered);
+        let cameras: Vec<&str> = s.cameras.keys().map(String::as_str).collect();
+        println!("{name:<16} {:>6} {:>8} {:>11}  {}", s.visit, s.images, s.registered, cameras.join(", "));
     }
-    for (kind, p) in &report.pairs {
-        println!("{kind} pairs: {} tried, {} verified", p.tried, p.verified);
+    for kind in [PairKind::Intra, PairKind::Cross] {
+        if let Some(p) = report.pairs.get(&kind) {
+            println!("{kind} pairs: {} tried, {} verified", p.tried, p.verified);
+        }
     }
     if !report.rolls.is_empty() {
         println!("cross pairs by roll: {:?}", report.rolls);

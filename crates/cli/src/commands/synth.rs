@@ -7,7 +7,6 @@
 //!   `intrinsics.json`, `survey.json`, `overlaps.csv`,
 //!   `evaluation_points_<A>-<B>.csv` per session pair, and `README.txt`.
 
-use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
@@ -16,7 +15,8 @@ use rayon::prelude::*;
 use serde::Serialize;
 use tracing::info;
 
-use revisit_synth::{ChangeGrade, EvaluationOptions, EvaluationPair, Survey, SynthOptions};
+use revisit_core::Rigid3;
+use revisit_synth::{ChangeGrade, EvaluationOptions, EvaluationPair, Overlap, Survey, SynthOptions};
 
 /// Cross-session pairs with a smaller overlap are not listed in overlaps.csv.
 const MIN_LISTED_OVERLAP: f64 = 0.1;
@@ -138,27 +138,10 @@ fn write_truth(survey: &Survey, dir: &Path, eval_pairs: usize) -> anyhow::Result
     revisit_colmap::write_text(&survey.truth_model(), dir)
         .with_context(|| format!("writing the truth model to {}", dir.display()))?;
 
-    let mut poses = String::from("session,image,qw,qx,qy,qz,tx,ty,tz\n");
-    for session in survey.sessions() {
-        for image in &session.images {
-            let q = image.cam_from_world.wxyz();
-            let t = image.cam_from_world.translation;
-            let _ = writeln!(
-                poses,
-                "{},{},{},{},{},{},{},{},{}",
-                session.name,
-                image.file,
-                num(q[0]),
-                num(q[1]),
-                num(q[2]),
-                num(q[3]),
-                num(t.x),
-                num(t.y),
-                num(t.z)
-            );
-        }
-    }
-    write_file(&dir.join("poses.csv"), &poses)?;
+    let poses = survey.sessions().iter().flat_map(|session| {
+        session.images.iter().map(|image| (session.name.as_str(), image.file.as_str(), &image.cam_from_world))
+    });
+    write_file(&dir.join("poses.csv"), &poses_csv(poses)?)?;
 
     let intrinsics = serde_json::to_string_pretty(&survey.intrinsics()).context("encoding intrinsics")?;
     write_file(&dir.join("intrinsics.json"), &(intrinsics + "\n"))?;
@@ -167,11 +150,7 @@ fn write_truth(survey: &Survey, dir: &Path, eval_pairs: usize) -> anyhow::Result
 
     let started = Instant::now();
     let overlaps = survey.overlaps(MIN_LISTED_OVERLAP).context("computing overlaps")?;
-    let mut csv = String::from("img0,img1,overlap\n");
-    for o in &overlaps {
-        let _ = writeln!(csv, "{},{},{:.4}", o.img0, o.img1, o.overlap);
-    }
-    write_file(&dir.join("overlaps.csv"), &csv)?;
+    write_file(&dir.join("overlaps.csv"), &overlaps_csv(&overlaps)?)?;
     info!("{} overlapping cross-session pairs ({:.1} s)", overlaps.len(), started.elapsed().as_secs_f64());
 
     let options = EvaluationOptions { pairs: eval_pairs, ..EvaluationOptions::default() };
@@ -183,7 +162,7 @@ fn write_truth(survey: &Survey, dir: &Path, eval_pairs: usize) -> anyhow::Result
                 .evaluation_points(a, b, &overlaps, &options)
                 .with_context(|| format!("picking evaluation points for {}-{}", sa.name, sb.name))?;
             let path = dir.join(format!("evaluation_points_{}-{}.csv", sa.name, sb.name));
-            write_file(&path, &evaluation_csv(&pairs))?;
+            write_file(&path, &evaluation_csv(&pairs)?)?;
             let points: usize = pairs.iter().map(|p| p.uv_clicked.len()).sum();
             info!("{}: {} pairs, {} points", path.display(), pairs.len(), points);
         }
@@ -199,14 +178,40 @@ fn uv_list(points: &[[f64; 2]]) -> String {
     format!("[{}]", items.join(", "))
 }
 
-/// The published evaluation format, with standard CSV quoting.
-fn evaluation_csv(pairs: &[EvaluationPair]) -> String {
-    let mut csv = String::from("img0,img1,uv_clicked,uv_groundtruth\n");
-    for p in pairs {
-        let _ =
-            writeln!(csv, "{},{},\"{}\",\"{}\"", p.img0, p.img1, uv_list(&p.uv_clicked), uv_list(&p.uv_groundtruth));
+/// A CSV file's text: the header, then the rows, quoted where a cell needs it
+/// (image names may hold commas, quotes or any letter).
+fn csv_text<const N: usize>(header: [&str; N], rows: impl IntoIterator<Item = [String; N]>) -> anyhow::Result<String> {
+    let mut writer = csv::Writer::from_writer(Vec::new());
+    writer.write_record(header)?;
+    for row in rows {
+        writer.write_record(&row)?;
     }
-    csv
+    let bytes = writer.into_inner().map_err(|e| anyhow::anyhow!("writing CSV: {e}"))?;
+    Ok(String::from_utf8(bytes)?)
+}
+
+/// poses.csv: `session,image,qw,qx,qy,qz,tx,ty,tz` of each (session, file,
+/// cam_from_world).
+fn poses_csv<'a>(poses: impl IntoIterator<Item = (&'a str, &'a str, &'a Rigid3)>) -> anyhow::Result<String> {
+    let header = ["session", "image", "qw", "qx", "qy", "qz", "tx", "ty", "tz"];
+    let rows = poses.into_iter().map(|(session, file, cam_from_world)| {
+        let ([qw, qx, qy, qz], t) = (cam_from_world.wxyz(), cam_from_world.translation);
+        [session.to_owned(), file.to_owned(), num(qw), num(qx), num(qy), num(qz), num(t.x), num(t.y), num(t.z)]
+    });
+    csv_text(header, rows)
+}
+
+/// overlaps.csv: `img0,img1,overlap`.
+fn overlaps_csv(overlaps: &[Overlap]) -> anyhow::Result<String> {
+    let rows = overlaps.iter().map(|o| [o.img0.clone(), o.img1.clone(), format!("{:.4}", o.overlap)]);
+    csv_text(["img0", "img1", "overlap"], rows)
+}
+
+/// The published evaluation format: `img0,img1,uv_clicked,uv_groundtruth`.
+fn evaluation_csv(pairs: &[EvaluationPair]) -> anyhow::Result<String> {
+    let rows =
+        pairs.iter().map(|p| [p.img0.clone(), p.img1.clone(), uv_list(&p.uv_clicked), uv_list(&p.uv_groundtruth)]);
+    csv_text(["img0", "img1", "uv_clicked", "uv_groundtruth"], rows)
 }
 
 #[derive(Serialize)]
@@ -266,7 +271,8 @@ World frame: x east, y north, z up, metres; the site is a square centred on the
 origin. Camera frame and pixels follow COLMAP: x right, y down, z forward; the
 centre of the top-left pixel is (0.5, 0.5). Poses are cam_from_world
 (x_cam = R x_world + t). Images are named session/file, e.g. s1/s1_0000.png,
-relative to ../sessions/.
+relative to ../sessions/. The .csv files are UTF-8 with standard (RFC 4180)
+quoting: a cell holding a comma, a quote or a line break is quoted.
 
 cameras.txt, images.txt, points3D.txt
     COLMAP text model of the exact cameras used to render: one PINHOLE camera
@@ -293,3 +299,57 @@ evaluation_points_A-B.csv
     img1 (depth test against img1's rendered depth); uv_groundtruth is the
     exact projection of the same 3D point into img1.
 ";
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A session and image names that need quoting, and a letter beyond ASCII.
+    const SESSION: &str = "visite \"été\", 2";
+    const FILE: &str = "a,b \"é\".png";
+
+    #[test]
+    fn truth_csv_names_with_commas_quotes_and_accents_round_trip() {
+        let cam_from_world = Rigid3::from_wxyz([0.5, 0.5, -0.5, 0.5], [1.25, -2.0, 3.5]);
+        let poses = poses_csv([(SESSION, FILE, &cam_from_world)]).unwrap();
+        let read = revisit_eval::parse_truth_poses_csv(&poses, "poses.csv").unwrap();
+        assert_eq!(read.len(), 1, "{poses}");
+        assert_eq!((read[0].session.as_str(), read[0].name.clone()), (SESSION, format!("{SESSION}/{FILE}")));
+        let (q_read, q) = (read[0].cam_from_world.wxyz(), cam_from_world.wxyz());
+        assert!(q_read.iter().zip(q).all(|(a, b)| (a - b).abs() < 1e-12), "{q_read:?} != {q:?}");
+        assert_eq!(read[0].cam_from_world.translation, cam_from_world.translation);
+
+        let (img0, img1) = (format!("{SESSION}/{FILE}"), "s2/\"b\",é.png".to_owned());
+        let pair = EvaluationPair {
+            img0: img0.clone(),
+            img1: img1.clone(),
+            uv_clicked: vec![[12.5, 33.0], [100.0, 7.25]],
+            uv_groundtruth: vec![[14.0, 30.5], [98.125, 9.0]],
+        };
+        let points = evaluation_csv(std::slice::from_ref(&pair)).unwrap();
+        let read = revisit_eval::parse_points_csv(&points, "evaluation_points.csv").unwrap();
+        assert!(read.malformed.is_empty(), "{:?}", read.malformed);
+        let [click] = read.pairs.as_slice() else { panic!("{points}") };
+        assert_eq!((&click.img0, &click.img1), (&pair.img0, &pair.img1));
+        assert_eq!((&click.uv_clicked, &click.uv_groundtruth), (&pair.uv_clicked, &pair.uv_groundtruth));
+
+        let overlaps = overlaps_csv(&[Overlap { img0: img0.clone(), img1: img1.clone(), overlap: 0.5 }]).unwrap();
+        let mut reader = csv::Reader::from_reader(overlaps.as_bytes());
+        let rows: Vec<csv::StringRecord> = reader.records().collect::<Result<_, _>>().unwrap();
+        assert_eq!(rows, vec![csv::StringRecord::from(vec![img0.as_str(), img1.as_str(), "0.5000"])]);
+    }
+
+    #[test]
+    fn truth_csv_of_plain_names_is_unquoted_but_for_the_uv_lists() {
+        let pair = EvaluationPair {
+            img0: "s1/s1_0000.png".to_owned(),
+            img1: "s2/s2_0003.png".to_owned(),
+            uv_clicked: vec![[1.5, 2.0]],
+            uv_groundtruth: vec![[3.25, 4.0]],
+        };
+        assert_eq!(
+            evaluation_csv(&[pair]).unwrap(),
+            "img0,img1,uv_clicked,uv_groundtruth\ns1/s1_0000.png,s2/s2_0003.png,\"[[1.5, 2.0]]\",\"[[3.25, 4.0]]\"\n"
+        );
+    }
+}

@@ -3,10 +3,11 @@
 
 use std::collections::BTreeMap;
 
-use revisit_core::{split_image_name, Reconstruction};
+use revisit_core::{session_of, Reconstruction};
 
 /// How [`encode_ply`] colours the points.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "kebab-case")]
 pub enum PlyColors {
     /// The points' own colours (COLMAP's `rgb`).
     #[default]
@@ -41,10 +42,6 @@ pub fn session_palette(model: &Reconstruction) -> Vec<(String, [u8; 3])> {
     sessions.sort_unstable();
     sessions.dedup();
     sessions.into_iter().zip(SESSION_PALETTE.iter().cycle()).map(|(session, rgb)| (session.to_owned(), *rgb)).collect()
-}
-
-fn session_of(name: &str) -> &str {
-    split_image_name(name).map_or("", |(session, _)| session)
 }
 
 /// The model's points as a binary little-endian PLY: `double x, y, z` and

@@ -8,7 +8,7 @@ use std::path::Path;
 use image::RgbImage;
 use ndarray::{ArrayView, IxDyn};
 use revisit_core::{LearnedFeatures, Roll};
-use revisit_onnx::{Contract, InputSpec, Model, OnnxError, Runtime};
+use revisit_onnx::{Contract, InputSpec, Model, OnnxError, OutputSpec, Runtime};
 
 use image::imageops::FilterType;
 
@@ -19,7 +19,11 @@ pub const DESCRIPTOR_DIM: usize = 128;
 
 const CONTRACT: Contract = Contract {
     inputs: &[InputSpec { name: "image", shape: &[Some(1), Some(3), None, None] }],
-    outputs: &["keypoints", "descriptors", "scores"],
+    outputs: &[
+        OutputSpec { name: "keypoints", shape: &[Some(1), None, Some(2)] },
+        OutputSpec { name: "descriptors", shape: &[Some(1), None, Some(DESCRIPTOR_DIM as i64)] },
+        OutputSpec { name: "scores", shape: &[Some(1), None] },
+    ],
 };
 
 /// An opened ALIKED model and the frame size it was exported for.
@@ -32,8 +36,12 @@ pub struct Aliked {
 impl Aliked {
     pub fn open(runtime: &Runtime, path: &Path) -> Result<Aliked, OnnxError> {
         let model = Model::open(runtime, path, &CONTRACT)?;
+        // The contract checked that the input is [1, 3, H, W].
         let shape = model.input_shape("image").unwrap_or_default();
-        let (height, width) = (shape[2], shape[3]);
+        let (height, width) = match shape[..] {
+            [_, _, height, width] => (height, width),
+            _ => (-1, -1),
+        };
         if height <= 0 || width <= 0 {
             return Err(OnnxError::Contract {
                 path: path.to_path_buf(),
@@ -76,14 +84,14 @@ impl Aliked {
     pub fn run(&mut self, input: &Planar) -> Result<LearnedFeatures, OnnxError> {
         let view = ArrayView::from_shape(IxDyn(&[1, 3, input.height, input.width]), &input.data)
             .map_err(|e| shape_error(&self.model, e.to_string()))?;
-        let outputs = self.model.run(&[("image", view)], CONTRACT.outputs)?;
-        let keypoints = &outputs["keypoints"];
-        let descriptors = &outputs["descriptors"];
-        let scores = &outputs["scores"];
-        let count = keypoints.len() / 2;
-        if descriptors.len() != count * DESCRIPTOR_DIM || scores.len() != count {
-            return Err(shape_error(&self.model, format!("outputs of {count} keypoints disagree in size")));
-        }
+        let mut outputs = self.model.run(&[("image", view)], &CONTRACT.output_names())?;
+        let mut take = |name: &str| outputs.remove(name).unwrap_or_default();
+        let (keypoints, descriptors, scores) = (take("keypoints"), take("descriptors"), take("scores"));
+        // The run checked each output against the contract; the keypoint counts must agree.
+        let count = keypoints.shape().get(1).copied().unwrap_or_default();
+        self.model.check_output("keypoints", keypoints.shape(), &[Some(1), Some(count), Some(2)])?;
+        self.model.check_output("descriptors", descriptors.shape(), &[Some(1), Some(count), Some(DESCRIPTOR_DIM)])?;
+        self.model.check_output("scores", scores.shape(), &[Some(1), Some(count)])?;
         // ALIKED's (0, 0) is the centre of the top-left pixel.
         let xy: Vec<f32> = keypoints.iter().copied().collect();
         Ok(LearnedFeatures {

@@ -18,16 +18,22 @@ use std::path::Path;
 use image::RgbImage;
 use ndarray::{ArrayD, ArrayView, IxDyn};
 use revisit_core::{LearnedFeatures, Roll};
-use revisit_onnx::{Contract, InputSpec, Model, OnnxError, Runtime};
+use revisit_onnx::{Contract, InputSpec, Model, OnnxError, OutputSpec, Runtime};
 
 use super::{shape_error, Planar};
 
 pub const DESCRIPTOR_DIM: usize = 64;
 const CELL: usize = 8;
+/// Keypoint logits per cell: one per pixel of the 8x8 cell, and the dustbin.
+const KEYPOINT_CHANNELS: usize = CELL * CELL + 1;
 
 const CONTRACT: Contract = Contract {
     inputs: &[InputSpec { name: "image", shape: &[Some(1), Some(1), None, None] }],
-    outputs: &["feats", "keypoints", "heatmap"],
+    outputs: &[
+        OutputSpec { name: "feats", shape: &[Some(1), Some(DESCRIPTOR_DIM as i64), None, None] },
+        OutputSpec { name: "keypoints", shape: &[Some(1), Some(KEYPOINT_CHANNELS as i64), None, None] },
+        OutputSpec { name: "heatmap", shape: &[Some(1), Some(1), None, None] },
+    ],
 };
 
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -49,14 +55,34 @@ pub struct XFeat {
     pub options: XFeatOptions,
 }
 
-/// The backbone's three outputs for one image.
+/// The backbone's three outputs for one `width` x `height` image, checked
+/// to be of these shapes (h = height / 8, w = width / 8), row-major.
 pub struct BackboneOutput {
     /// [64, h, w] dense descriptors.
-    pub feats: ArrayD<f32>,
+    feats: ArrayD<f32>,
     /// [65, h, w] keypoint logits.
-    pub keypoints: ArrayD<f32>,
+    keypoints: ArrayD<f32>,
     /// [1, h, w] reliability.
-    pub heatmap: ArrayD<f32>,
+    heatmap: ArrayD<f32>,
+    width: usize,
+    height: usize,
+}
+
+impl BackboneOutput {
+    /// [64, h, w] dense descriptors.
+    pub fn feats(&self) -> &ArrayD<f32> {
+        &self.feats
+    }
+
+    /// [65, h, w] keypoint logits.
+    pub fn keypoints(&self) -> &ArrayD<f32> {
+        &self.keypoints
+    }
+
+    /// [1, h, w] reliability.
+    pub fn heatmap(&self) -> &ArrayD<f32> {
+        &self.heatmap
+    }
 }
 
 impl XFeat {
@@ -75,7 +101,7 @@ impl XFeat {
         }
         let input = grey.resized(width, height);
         let output = self.backbone(&input)?;
-        let mut features = detect_and_describe(&output, width, height, &self.options);
+        let mut features = detect_and_describe(&output, &self.options);
         let (sx, sy) = (grey.width as f32 / width as f32, grey.height as f32 / height as f32);
         for p in &mut features.keypoints {
             // XFeat scales pixel indices (centre convention) by the resize ratio.
@@ -85,31 +111,40 @@ impl XFeat {
         Ok(features)
     }
 
-    /// Runs the backbone on a grey image whose sides are multiples of 32.
+    /// Runs the backbone on a grey image whose sides are multiples of 32. Each
+    /// output must be [1, channels, H/8, W/8] (64 channels for `feats`, 65 for
+    /// `keypoints`, 1 for `heatmap`); another shape is an
+    /// [`OnnxError::Output`] naming the file and the output.
     pub fn backbone(&mut self, input: &Planar) -> Result<BackboneOutput, OnnxError> {
-        let view = ArrayView::from_shape(IxDyn(&[1, 1, input.height, input.width]), &input.data)
+        let (width, height) = (input.width, input.height);
+        if width % 32 != 0 || height % 32 != 0 || width == 0 || height == 0 {
+            return Err(shape_error(&self.model, format!("input of {width}x{height}: sides must be multiples of 32")));
+        }
+        let view = ArrayView::from_shape(IxDyn(&[1, 1, height, width]), &input.data)
             .map_err(|e| shape_error(&self.model, e.to_string()))?;
-        let mut outputs = self.model.run(&[("image", view)], CONTRACT.outputs)?;
-        let mut take = |name: &str| -> Result<ArrayD<f32>, OnnxError> {
+        let mut outputs = self.model.run(&[("image", view)], &CONTRACT.output_names())?;
+        let mut take = |name: &str, channels: usize| -> Result<ArrayD<f32>, OnnxError> {
             let array = outputs.remove(name).unwrap_or_default();
-            let shape = array.shape().to_vec();
-            if shape.len() != 4 || shape[2] * CELL != input.height || shape[3] * CELL != input.width {
-                return Err(shape_error(&self.model, format!("output `{name}` has shape {shape:?}")));
-            }
-            Ok(array.index_axis_move(ndarray::Axis(0), 0))
+            let expected = [Some(1), Some(channels), Some(height / CELL), Some(width / CELL)];
+            self.model.check_output(name, array.shape(), &expected)?;
+            let planes = array.index_axis_move(ndarray::Axis(0), 0);
+            // Row-major, so that the steps below can read the planes as slices.
+            Ok(if planes.is_standard_layout() { planes } else { planes.as_standard_layout().into_owned() })
         };
-        Ok(BackboneOutput { feats: take("feats")?, keypoints: take("keypoints")?, heatmap: take("heatmap")? })
+        Ok(BackboneOutput {
+            feats: take("feats", DESCRIPTOR_DIM)?,
+            keypoints: take("keypoints", KEYPOINT_CHANNELS)?,
+            heatmap: take("heatmap", 1)?,
+            width,
+            height,
+        })
     }
 }
 
-/// Steps 2 to 5 on the backbone's output for a `width` x `height` input.
+/// Steps 2 to 5 on the backbone's output for its `width` x `height` input.
 /// Keypoints are pixel indices of that input (centre convention).
-pub fn detect_and_describe(
-    output: &BackboneOutput,
-    width: usize,
-    height: usize,
-    options: &XFeatOptions,
-) -> LearnedFeatures {
+pub fn detect_and_describe(output: &BackboneOutput, options: &XFeatOptions) -> LearnedFeatures {
+    let (width, height) = (output.width, output.height);
     let heatmap = keypoint_heatmap(&output.keypoints, width, height);
     let candidates = non_maximum_suppression(&heatmap, width, height, options.detection_threshold);
     let reliability = output.heatmap.as_slice().unwrap_or_default();
@@ -152,7 +187,7 @@ pub fn detect_and_describe(
 /// `width` x `height` heatmap (channel `dy * 8 + dx` is pixel (dx, dy) of the cell).
 fn keypoint_heatmap(logits: &ArrayD<f32>, width: usize, height: usize) -> Vec<f32> {
     let (cell_w, cell_h) = (width / CELL, height / CELL);
-    let channels = CELL * CELL + 1;
+    let channels = KEYPOINT_CHANNELS;
     let logits = logits.as_slice().unwrap_or_default();
     let plane = cell_w * cell_h;
     let mut heatmap = vec![0.0; width * height];

@@ -1,7 +1,7 @@
 //! `revisit bench matching`: the cross-visit strategies side by side on one
-//! synthetic dataset with exact truth, each through the real `revisit
-//! reconstruct`, plus place-recognition recall, roll-search agreement and
-//! cost, and learned extraction speed.
+//! synthetic dataset with exact truth, each through the pipeline's
+//! `Workspace` (what `revisit reconstruct` runs), plus place-recognition
+//! recall, roll-search agreement and cost, and learned extraction speed.
 //!
 //! Every strategy gets its own work folder (nothing is shared between them,
 //! so each pays its whole matching cost). The published figures beside them:
@@ -13,17 +13,19 @@ use std::path::{Path, PathBuf};
 use std::time::Instant;
 
 use anyhow::{ensure, Context, Result};
-use clap::Parser;
-use revisit_core::{ImageId, Roll};
+use revisit_core::{session_of, ImageId, PairKind, Roll};
 use revisit_eval::{parse_points_csv, score, ScoreOptions};
-use revisit_matching::{RollSearch, VerifyOptions};
+use revisit_matching::{CrossOptions, RollSearch};
+use revisit_pipeline::ingest::{scan_session, SessionSpec};
 use revisit_pipeline::learned::LearnedMethod;
+use revisit_pipeline::options::{CameraSpec, PlaceSource, ReconstructOptions};
+use revisit_pipeline::{CrossStrategy, Report, Workspace};
 use revisit_places::{nearest, CandidateOptions};
 use revisit_store::Store;
 use serde::Serialize;
 
-use crate::commands::models::ModelArgs;
-use crate::commands::reconstruct;
+use crate::commands::models::{cross_strategies, ToolArgs};
+use crate::progress::Bars;
 
 /// Image pairs of different visits overlapping at least this much (truth's
 /// `overlaps.csv`) count as places a query should find.
@@ -45,8 +47,8 @@ pub struct Args {
     #[arg(long, value_name = "WORK")]
     work: Option<PathBuf>,
     /// The strategies, in the order they run.
-    #[arg(long, value_delimiter = ',', default_value = "sift,learned-all,learned-cross,vpr")]
-    strategies: Vec<reconstruct::CrossArg>,
+    #[arg(long, value_delimiter = ',', default_value = "sift,learned-all,learned-cross,vpr", value_parser = cross_strategies())]
+    strategies: Vec<CrossStrategy>,
     /// SIFT features per image (all strategies).
     #[arg(long, default_value_t = 1024, value_name = "N")]
     max_features: usize,
@@ -60,14 +62,7 @@ pub struct Args {
     #[arg(long, value_name = "FILE")]
     json: Option<PathBuf>,
     #[command(flatten)]
-    models: ModelArgs,
-}
-
-/// `revisit reconstruct`'s arguments, parsed from words as the CLI does.
-#[derive(Parser)]
-struct ReconstructWords {
-    #[command(flatten)]
-    args: reconstruct::Args,
+    tools: ToolArgs,
 }
 
 #[derive(Serialize)]
@@ -146,29 +141,31 @@ pub fn run(args: Args) -> Result<()> {
         roll_search: None,
         extraction: Vec::new(),
     };
-    for strategy in &args.strategies {
+    let camera = calibrated_camera(&truth_dir)?;
+    let cancel = crate::signals::cancel_on_signals()?;
+    for &strategy in &args.strategies {
         let name = strategy.name();
         let out = work.join(name);
-        let mut words: Vec<String> = vec!["reconstruct".into()];
-        for session in &session_names {
-            words.push("--session".into());
-            words.push(format!("{session}={}", sessions_dir.join(session).display()));
+        let mut options = ReconstructOptions { cross: strategy, ..ReconstructOptions::default() };
+        options.features.sift.max_num_features = args.max_features;
+        options.places.candidates.top_k = args.vpr_top_k;
+        if let Some(camera) = &camera {
+            options.cameras.calibrated.insert(String::new(), camera.clone());
         }
-        words.extend(["--out".into(), out.display().to_string(), "--cross".into(), name.into()]);
-        words.extend(["--max-features".into(), args.max_features.to_string()]);
-        words.extend(["--vpr-top-k".into(), args.vpr_top_k.to_string()]);
-        words.extend(args.models.to_words());
-        words.extend(calibrated_camera(&truth_dir)?);
         println!("== {name}");
-        let parsed = ReconstructWords::try_parse_from(&words).context("building the reconstruct command")?;
-        reconstruct::run(parsed.args).with_context(|| format!("strategy {name}"))?;
-        figures.strategies.push(strategy_figures(name, &out, &truth_dir, session_names.len())?);
-        if *strategy == reconstruct::CrossArg::Vpr {
-            figures.places = Some(place_figures(&out, &truth_dir)?);
-            figures.roll_search = Some(roll_figures(&out, &args.models)?);
+        let mut workspace = Workspace::open(&out, options, args.tools.tools())?;
+        for session in &session_names {
+            let spec = SessionSpec { name: session.clone(), dir: sessions_dir.join(session) };
+            workspace.add_session(scan_session(&spec)?)?;
+        }
+        let report = workspace.run(&Bars::default(), &cancel).with_context(|| format!("strategy {name}"))?;
+        figures.strategies.push(strategy_figures(name, &report, &out, &truth_dir)?);
+        if strategy == CrossStrategy::Vpr {
+            figures.places = Some(place_figures(&report, &out, &truth_dir)?);
+            figures.roll_search = Some(roll_figures(&out, &args.tools)?);
         }
     }
-    figures.extraction = extraction_figures(&sessions_dir, &session_names, args.extraction_images, &args.models)?;
+    figures.extraction = extraction_figures(&sessions_dir, &session_names, args.extraction_images, &args.tools)?;
 
     print_figures(&figures);
     if let Some(path) = &args.json {
@@ -179,9 +176,9 @@ pub fn run(args: Args) -> Result<()> {
     Ok(())
 }
 
-/// `--camera MODEL:PARAMS` from the truth's intrinsics.json when every
-/// session has the same camera (the synthetic surveys' is calibrated).
-fn calibrated_camera(truth: &Path) -> Result<Vec<String>> {
+/// The truth's camera (intrinsics.json) when every session has the same one
+/// (the synthetic surveys' is calibrated).
+fn calibrated_camera(truth: &Path) -> Result<Option<CameraSpec>> {
     let intrinsics = read_json(&truth.join("intrinsics.json"))?;
     let cameras: BTreeSet<String> = intrinsics
         .as_array()
@@ -192,10 +189,10 @@ fn calibrated_camera(truth: &Path) -> Result<Vec<String>> {
             Some(format!("{}:{}", c["model"].as_str()?, params.join(",")))
         })
         .collect();
-    Ok(match cameras.len() {
-        1 => vec!["--camera".to_owned(), cameras.into_iter().next().unwrap_or_default()],
-        _ => Vec::new(),
-    })
+    match cameras.into_iter().collect::<Vec<_>>()[..] {
+        [ref one] => Ok(Some(one.parse().map_err(anyhow::Error::msg).context("truth/intrinsics.json")?)),
+        _ => Ok(None),
+    }
 }
 
 fn read_json(path: &Path) -> Result<serde_json::Value> {
@@ -203,18 +200,13 @@ fn read_json(path: &Path) -> Result<serde_json::Value> {
     serde_json::from_str(&text).with_context(|| path.display().to_string())
 }
 
-fn strategy_figures(name: &str, out: &Path, truth: &Path, sessions: usize) -> Result<StrategyFigures> {
-    let report = read_json(&out.join("report.json"))?;
-    let secs = |stage: &str| report["seconds"][stage].as_f64().unwrap_or(0.0);
+fn strategy_figures(name: &str, report: &Report, out: &Path, truth: &Path) -> Result<StrategyFigures> {
+    let secs = |stage: &str| report.seconds.get(stage).copied().unwrap_or(0.0);
     let store = Store::open_read_only(&out.join("database.db"))?;
     let records = store.pair_records()?;
-    let cross: Vec<_> = records.iter().filter(|r| r.kind == "cross").collect();
-    let in_chosen = report["sessions"]
-        .as_object()
-        .map(|s| s.values().filter(|v| v["registered"].as_u64().unwrap_or(0) > 0).count())
-        .unwrap_or(0);
-    let (median, scored) = match report["chosen_model"].as_str() {
-        Some(model) => cross_error(Path::new(model), truth)?,
+    let cross: Vec<_> = records.iter().filter(|r| r.kind == PairKind::Cross).collect();
+    let (median, scored) = match &report.chosen_model {
+        Some(model) => cross_error(model, truth)?,
         None => (None, 0),
     };
     Ok(StrategyFigures {
@@ -225,9 +217,9 @@ fn strategy_figures(name: &str, out: &Path, truth: &Path, sessions: usize) -> Re
         cross_pairs_matched: cross.len(),
         cross_pairs_verified: cross.iter().filter(|r| r.num_inliers > 0).count(),
         cross_inliers: cross.iter().map(|r| r.num_inliers).sum(),
-        sessions,
-        sessions_in_chosen_model: in_chosen,
-        models: report["models"].as_u64().unwrap_or(0) as usize,
+        sessions: report.sessions.len(),
+        sessions_in_chosen_model: report.sessions.values().filter(|s| s.registered > 0).count(),
+        models: report.models,
         median_cross_error_px: median,
         clicks_scored: scored,
     })
@@ -266,21 +258,17 @@ fn read_overlaps(truth: &Path) -> Result<Vec<(String, String, f64)>> {
     Ok(out)
 }
 
-fn session_of(name: &str) -> &str {
-    name.split_once('/').map_or(name, |(s, _)| s)
-}
-
 /// Recall@k of the place candidates against the truth: a query (an image of
 /// a later visit with at least one truly overlapping image in earlier
 /// visits) is found at k if one of its k nearest is such an image.
-fn place_figures(out: &Path, truth: &Path) -> Result<PlaceFigures> {
+fn place_figures(report: &Report, out: &Path, truth: &Path) -> Result<PlaceFigures> {
     let store = Store::open_read_only(&out.join("database.db"))?;
     let ids = store.image_ids()?;
     let names: BTreeMap<ImageId, &String> = ids.iter().map(|(n, id)| (*id, n)).collect();
     let sessions: Vec<String> = store.sessions()?.into_iter().map(|s| s.name).collect();
-    let report = read_json(&out.join("report.json"))?;
-    // The descriptors `reconstruct` makes by default: VLAD over the default learned features.
-    let method = format!("vlad64-{}", LearnedMethod::default().name());
+    // The descriptors the default options make: VLAD over the default learned features.
+    let PlaceSource::Vlad { clusters } = PlaceSource::default() else { anyhow::bail!("the default places are VLAD") };
+    let method = format!("vlad{clusters}-{}", LearnedMethod::default().name());
     let descriptors = store.global_descriptors(&method)?;
     ensure!(!descriptors.is_empty(), "{}: no {method} descriptors", out.display());
     let mut truly: BTreeSet<(String, String)> = BTreeSet::new();
@@ -319,13 +307,12 @@ fn place_figures(out: &Path, truth: &Path) -> Result<PlaceFigures> {
             *found.entry(k).or_default() += usize::from(hit);
         }
     }
-    let counts: Vec<usize> =
-        sessions.iter().map(|s| report["sessions"][s]["images"].as_u64().unwrap_or(0) as usize).collect();
+    let counts: Vec<usize> = sessions.iter().map(|s| report.sessions.get(s).map_or(0, |s| s.images)).collect();
     let all_cross: usize = (0..counts.len())
         .flat_map(|i| (i + 1..counts.len()).map(move |j| (i, j)))
         .map(|(i, j)| counts[i] * counts[j])
         .sum();
-    let sent = report["pairs"]["cross"]["tried"].as_u64().unwrap_or(0) as f64;
+    let sent = report.pairs_of(PairKind::Cross).tried as f64;
     Ok(PlaceFigures {
         queries,
         recall_at: ks
@@ -338,13 +325,12 @@ fn place_figures(out: &Path, truth: &Path) -> Result<PlaceFigures> {
 
 /// Probe against full roll search on the `vpr` run's cross-visit pairs, with
 /// the features it stored.
-fn roll_figures(out: &Path, models: &ModelArgs) -> Result<RollFigures> {
+fn roll_figures(out: &Path, tools: &ToolArgs) -> Result<RollFigures> {
     let method = LearnedMethod::default();
-    let (_, mut learned) = models.open(method)?;
+    let (_, mut learned) = tools.open(method)?;
     let store = Store::open_read_only(&out.join("database.db"))?;
-    let pairs: Vec<_> = store.pair_records()?.into_iter().filter(|r| r.kind == "cross").collect();
-    let verify = VerifyOptions { min_inliers: revisit_pipeline::cross::CROSS_MIN_INLIERS, ..VerifyOptions::default() };
-    let margin = revisit_matching::roll::DEFAULT_ROLL_MARGIN;
+    let pairs: Vec<_> = store.pair_records()?.into_iter().filter(|r| r.kind == PairKind::Cross).collect();
+    let CrossOptions { verify, roll_margin: margin, .. } = CrossOptions::default();
     let mut figures = RollFigures {
         pairs: pairs.len(),
         verified_by_full: 0,
@@ -364,14 +350,14 @@ fn roll_figures(out: &Path, models: &ModelArgs) -> Result<RollFigures> {
             .map(|r| Ok((*r, store.read_learned_features(pair.image_id2, method.name(), r.degrees())?)))
             .collect::<Result<Vec<_>>>()?;
         let start = Instant::now();
-        let full = learned.match_pair(&a, &b_by_roll, RollSearch::Full, &verify)?;
+        let full = learned.match_rolls(&a, &b_by_roll, RollSearch::Full, margin, &verify)?;
         figures.full_search_secs += start.elapsed().as_secs_f64();
         let start = Instant::now();
-        let probe = learned.match_pair(&a, &b_by_roll, RollSearch::DEFAULT, &verify)?;
+        let probe = learned.match_rolls(&a, &b_by_roll, RollSearch::DEFAULT, margin, &verify)?;
         figures.probe_search_secs += start.elapsed().as_secs_f64();
         let start = Instant::now();
         let chosen = b_by_roll.iter().find(|(r, _)| *r == full.roll).map_or(&b_by_roll[0], |x| x);
-        learned.match_pair(&a, std::slice::from_ref(chosen), RollSearch::Off, &verify)?;
+        learned.match_rolls(&a, std::slice::from_ref(chosen), RollSearch::Off, margin, &verify)?;
         figures.one_match_secs += start.elapsed().as_secs_f64();
         figures.probe_fell_back += usize::from(probe.fell_back);
         let agree = probe.roll == full.roll;
@@ -396,7 +382,7 @@ fn extraction_figures(
     sessions_dir: &Path,
     sessions: &[String],
     count: usize,
-    models: &ModelArgs,
+    tools: &ToolArgs,
 ) -> Result<Vec<ExtractionFigures>> {
     let mut images = Vec::new();
     for session in sessions {
@@ -414,7 +400,7 @@ fn extraction_figures(
         .collect::<Result<Vec<_>>>()?;
     let mut out = Vec::new();
     for (method, target_secs) in [(LearnedMethod::XfeatLighterglue, 0.2), (LearnedMethod::AlikedLightglue, 1.0)] {
-        let (_, mut learned) = models.open(method)?;
+        let (_, mut learned) = tools.open(method)?;
         // One warm-up run: ONNX Runtime plans its kernels on the first call.
         if let Some(first) = decoded.first() {
             learned.extract(first, Roll::R0)?;

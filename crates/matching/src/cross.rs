@@ -1,0 +1,258 @@
+//! One learned pair, start to finish: the learned matcher with roll search,
+//! anchoring of learned keypoints to each image's own keypoints, and the rule
+//! that accepts or rejects the pair. The pipeline's store loop, `revisit
+//! match` and the ROS matcher node all call [`match_learned_pair`].
+//!
+//! The acceptance rule ([`accept`]) is pure and separate so that it can be
+//! read and tested on its own: a pair is kept only if
+//! 1. its winning roll stands out ([`CrossMatch::roll_is_clear`]: on a pair
+//!    that shows no common place every roll finds a few chance inliers, about
+//!    as many at each), and
+//! 2. its matches, once each learned keypoint is anchored to the image's own
+//!    keypoint at the same spot and every keypoint is used at most once per
+//!    side, verify geometrically with at least `verify.min_inliers` inliers.
+
+use std::collections::HashSet;
+
+use revisit_core::{CrossKey, Keypoint, LearnedFeatures, PairKind, Roll, TwoViewGeometry};
+use revisit_onnx::OnnxError;
+use serde::{Deserialize, Serialize};
+
+use crate::roll::{match_with_rolls, unrolled_keypoints, CrossMatch, RollSearch, DEFAULT_ROLL_MARGIN};
+use crate::verify::{verify, VerifyOptions};
+use crate::{anchor_keypoints, check_range, LightGlue, OptionsError};
+
+/// Fewest verified inliers of a learned pair, by default: cross-visit pairs
+/// are rarer and their chance inliers more plentiful than within a visit, so
+/// twice COLMAP's 15.
+pub const CROSS_MIN_INLIERS: usize = 30;
+
+/// Anchoring radius, by default, pixels.
+pub const DEFAULT_ANCHOR_RADIUS_PX: f32 = 1.5;
+
+/// Options of learned pair matching.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct CrossOptions {
+    /// How the roll of the second image of a cross-visit pair is chosen.
+    /// Default: the probe ([`RollSearch::DEFAULT`]). Pairs within a visit are
+    /// matched at roll 0.
+    pub roll_search: RollSearch,
+    /// The winning roll's inliers must be at least this many times the
+    /// runner-up's, or the pair is rejected (and a probe falls back to the
+    /// full search). 1 turns the check off. Default [`DEFAULT_ROLL_MARGIN`].
+    pub roll_margin: f32,
+    /// A learned keypoint within this distance of an own (SIFT) keypoint is
+    /// matched as that keypoint. Default [`DEFAULT_ANCHOR_RADIUS_PX`].
+    pub anchor_radius_px: f32,
+    /// Verification; default asks for [`CROSS_MIN_INLIERS`] inliers.
+    pub verify: VerifyOptions,
+}
+
+impl Default for CrossOptions {
+    fn default() -> Self {
+        CrossOptions {
+            roll_search: RollSearch::DEFAULT,
+            roll_margin: DEFAULT_ROLL_MARGIN,
+            anchor_radius_px: DEFAULT_ANCHOR_RADIUS_PX,
+            verify: VerifyOptions { min_inliers: CROSS_MIN_INLIERS, ..VerifyOptions::default() },
+        }
+    }
+}
+
+impl CrossOptions {
+    pub fn check(&self) -> Result<(), OptionsError> {
+        self.roll_search.check()?;
+        check_range("roll_margin", self.roll_margin, 1.0, f32::MAX, "at least 1")?;
+        check_range("anchor_radius_px", self.anchor_radius_px, 0.0, 100.0, "in [0, 100]")?;
+        self.verify.check()
+    }
+}
+
+/// A learned pair, matched and judged.
+#[derive(Clone, Debug)]
+pub struct LearnedPairMatch {
+    /// The roll of the second image that won.
+    pub roll: Roll,
+    /// Inliers found at each roll tried (probe counts for a conclusive probe).
+    pub inliers_by_roll: Vec<(Roll, usize)>,
+    /// Whether a probe was inconclusive and the full search ran.
+    pub fell_back: bool,
+    /// Each side's learned keypoints in its own unrolled frame, by learned
+    /// index (the second side's at the winning roll).
+    pub positions: [Vec<[f32; 2]>; 2],
+    /// Every match, anchored, at most one per keypoint on each side.
+    pub matches: Vec<[CrossKey; 2]>,
+    /// The matches kept: empty if the pair was rejected.
+    pub inliers: Vec<[CrossKey; 2]>,
+    /// The verified geometry between the unrolled images (degenerate if rejected).
+    pub geometry: TwoViewGeometry,
+}
+
+impl LearnedPairMatch {
+    pub fn accepted(&self) -> bool {
+        !self.inliers.is_empty()
+    }
+}
+
+/// Matches image `a` (learned features at roll 0, and every keypoint it
+/// already holds) with image `b` (learned features at each roll the search
+/// needs, and its keypoints): a cross-visit pair with `options.roll_search`,
+/// a pair within a visit at roll 0 only. Then [`accept`] judges the result.
+pub fn match_learned_pair(
+    matcher: &mut LightGlue,
+    a: (&LearnedFeatures, &[Keypoint]),
+    b: (&[(Roll, LearnedFeatures)], &[Keypoint]),
+    kind: PairKind,
+    options: &CrossOptions,
+) -> Result<LearnedPairMatch, OnnxError> {
+    let search = match kind {
+        PairKind::Cross => options.roll_search,
+        PairKind::Intra => RollSearch::Off,
+    };
+    let (b_by_roll, own_b) = b;
+    let found = match_with_rolls(matcher, a.0, b_by_roll, search, options.roll_margin, &options.verify)?;
+    let positions_a = a.0.keypoints.clone();
+    let positions_b: Vec<[f32; 2]> = b_by_roll
+        .iter()
+        .find(|(roll, _)| *roll == found.roll)
+        .map(|(roll, features)| unrolled_keypoints(features, *roll).iter().map(|k| [k.x, k.y]).collect())
+        .unwrap_or_default();
+    Ok(accept(&found, [positions_a, positions_b], [a.1, own_b], options))
+}
+
+/// The acceptance rule (see the module's documentation): anchors `found`'s
+/// matches (learned indices into `positions`) to the images' `own`
+/// keypoints, keeps one match per keypoint and side, and verifies them if
+/// the roll is clear.
+pub fn accept(
+    found: &CrossMatch,
+    positions: [Vec<[f32; 2]>; 2],
+    own: [&[Keypoint]; 2],
+    options: &CrossOptions,
+) -> LearnedPairMatch {
+    let anchors = [0, 1].map(|side| anchor_keypoints(own[side], &positions[side], options.anchor_radius_px));
+    let key = |side: usize, learned: u32| match anchors[side].get(learned as usize) {
+        Some(Some(own)) => CrossKey::Own(*own),
+        _ => CrossKey::Learned(learned),
+    };
+    let (mut used_a, mut used_b) = (HashSet::new(), HashSet::new());
+    let matches: Vec<[CrossKey; 2]> = found
+        .matches
+        .iter()
+        .filter(|[i, j]| (*i as usize) < positions[0].len() && (*j as usize) < positions[1].len())
+        .map(|&[i, j]| [key(0, i), key(1, j)])
+        .filter(|[ka, kb]| used_a.insert(*ka) && used_b.insert(*kb))
+        .collect();
+    let position = |side: usize, key: CrossKey| -> Keypoint {
+        let at = |[x, y]: [f32; 2]| Keypoint { x, y, scale: 1.0, orientation: 0.0 };
+        match key {
+            CrossKey::Own(i) => own[side].get(i as usize).copied().unwrap_or_else(|| at([f32::NAN; 2])),
+            CrossKey::Learned(l) => at(positions[side].get(l as usize).copied().unwrap_or([f32::NAN; 2])),
+        }
+    };
+    let geometry = if found.roll_is_clear(options.roll_margin) {
+        let points_a: Vec<Keypoint> = matches.iter().map(|m| position(0, m[0])).collect();
+        let points_b: Vec<Keypoint> = matches.iter().map(|m| position(1, m[1])).collect();
+        let identity: Vec<[u32; 2]> = (0..matches.len() as u32).map(|k| [k, k]).collect();
+        verify(&points_a, &points_b, &identity, &options.verify)
+    } else {
+        TwoViewGeometry::degenerate()
+    };
+    let inliers = geometry.inlier_matches.iter().filter_map(|m| matches.get(m[0] as usize).copied()).collect();
+    LearnedPairMatch {
+        roll: found.roll,
+        inliers_by_roll: found.inliers_by_roll.clone(),
+        fell_back: found.fell_back,
+        positions,
+        matches,
+        inliers,
+        geometry,
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use nalgebra::{Point3, Rotation3, Vector3};
+
+    use super::*;
+
+    /// `n` points seen by two cameras 1 m apart (focal 500 px, 640x480),
+    /// projected: pixel positions in each image.
+    fn two_views(n: usize) -> (Vec<[f32; 2]>, Vec<[f32; 2]>) {
+        let project = |p: Point3<f64>, r: &Rotation3<f64>, t: Vector3<f64>| {
+            let c = r * p.coords + t;
+            [(500.0 * c.x / c.z + 320.0) as f32, (500.0 * c.y / c.z + 240.0) as f32]
+        };
+        let r2 = Rotation3::from_euler_angles(0.02, -0.05, 0.1);
+        let (mut a, mut b) = (Vec::new(), Vec::new());
+        for k in 0..n {
+            // A deterministic scatter over a bumpy surface 4-6 m away.
+            let (u, v) = ((k * 37 % 101) as f64 / 101.0 - 0.5, (k * 61 % 97) as f64 / 97.0 - 0.5);
+            let p = Point3::new(3.0 * u, 2.4 * v, 5.0 + (7.0 * u).sin() * (5.0 * v).cos());
+            a.push(project(p, &Rotation3::identity(), Vector3::zeros()));
+            b.push(project(p, &r2, Vector3::new(-1.0, 0.1, 0.05)));
+        }
+        (a, b)
+    }
+
+    fn found(n: usize, inliers_by_roll: Vec<(Roll, usize)>) -> CrossMatch {
+        CrossMatch {
+            roll: Roll::R0,
+            matches: (0..n as u32).map(|k| [k, k]).collect(),
+            geometry: TwoViewGeometry::degenerate(),
+            inliers_by_roll,
+            fell_back: false,
+        }
+    }
+
+    fn keypoint([x, y]: [f32; 2]) -> Keypoint {
+        Keypoint { x, y, scale: 1.0, orientation: 0.0 }
+    }
+
+    #[test]
+    fn a_clear_roll_with_enough_inliers_is_accepted_and_anchored() {
+        let (a, b) = two_views(80);
+        // The first image already holds a keypoint 0.5 px from learned keypoint 3.
+        let own_a = vec![keypoint([a[3][0] + 0.5, a[3][1]])];
+        let pair = accept(&found(80, vec![(Roll::R0, 70), (Roll::R90, 9)]), [a, b], [&own_a, &[]], &Default::default());
+        assert!(pair.accepted());
+        assert!(pair.inliers.len() >= 70, "{} inliers", pair.inliers.len());
+        assert!(pair.inliers.contains(&[CrossKey::Own(0), CrossKey::Learned(3)]));
+        assert!(!pair.inliers.iter().any(|m| m[0] == CrossKey::Learned(3)));
+    }
+
+    #[test]
+    fn a_roll_that_does_not_stand_out_is_rejected() {
+        let (a, b) = two_views(80);
+        let pair = accept(&found(80, vec![(Roll::R0, 40), (Roll::R180, 35)]), [a, b], [&[], &[]], &Default::default());
+        assert!(!pair.accepted());
+        assert_eq!(pair.matches.len(), 80);
+        assert!(pair.geometry.inlier_matches.is_empty());
+    }
+
+    #[test]
+    fn too_few_inliers_are_rejected() {
+        let (a, b) = two_views(CROSS_MIN_INLIERS - 5);
+        let pair = accept(&found(a.len(), vec![(Roll::R0, 25)]), [a, b], [&[], &[]], &Default::default());
+        assert!(!pair.accepted());
+    }
+
+    #[test]
+    fn two_learned_keypoints_on_one_own_keypoint_make_one_match() {
+        let (mut a, b) = two_views(60);
+        a[1] = [a[0][0] + 0.3, a[0][1]];
+        let own_a = vec![keypoint(a[0])];
+        let pair = accept(&found(60, vec![(Roll::R0, 50)]), [a, b], [&own_a, &[]], &Default::default());
+        let uses_own_0 = pair.matches.iter().filter(|m| m[0] == CrossKey::Own(0)).count();
+        assert_eq!(uses_own_0, 1);
+        assert_eq!(pair.matches.len(), 59);
+    }
+
+    #[test]
+    fn options_are_checked() {
+        assert!(CrossOptions::default().check().is_ok());
+        assert!(CrossOptions { roll_margin: 0.5, ..Default::default() }.check().is_err());
+        assert!(CrossOptions { roll_search: RollSearch::Probe { budget: 4 }, ..Default::default() }.check().is_err());
+    }
+}

@@ -1,0 +1,415 @@
+//! The reconstruction job: a work folder, its store and its options.
+
+use std::collections::{BTreeMap, BTreeSet};
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+use revisit_core::{Camera, CameraId, CameraModel, ImageId, ImageName};
+use revisit_store::Store;
+
+use crate::cross::{self, Places};
+use crate::export;
+use crate::ingest::SessionImages;
+use crate::learned::Learned;
+use crate::locate::Tools;
+use crate::mapping::{self, MappingOutcome};
+use crate::options::{CameraSpec, ReconstructOptions};
+use crate::report::{CameraReport, CrossReport, MappingReport, Report};
+use crate::stages::{self, LearnedKeypoints};
+use crate::{Cancel, PipelineError, Progress, StageCounts};
+
+/// An image of a session in a workspace.
+#[derive(Clone, Debug, PartialEq)]
+pub struct SessionImage {
+    pub name: ImageName,
+    pub id: ImageId,
+    /// The camera's name within the session.
+    pub camera: String,
+    /// The file on disk.
+    pub path: PathBuf,
+}
+
+/// A session added to a workspace: its images in time order, with their
+/// store ids and cameras.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Session {
+    pub name: String,
+    /// Place in the order of visits, as stored (0 = the reference).
+    pub visit: usize,
+    pub dir: PathBuf,
+    pub images: Vec<SessionImage>,
+    /// Cameras by name, as stored.
+    pub cameras: BTreeMap<String, Camera>,
+    /// Cameras whose intrinsics were given (held fixed in mapping).
+    pub calibrated: BTreeSet<String>,
+}
+
+impl Session {
+    /// The report's view of the cameras.
+    pub fn camera_reports(&self) -> BTreeMap<String, CameraReport> {
+        self.cameras
+            .iter()
+            .map(|(name, camera)| {
+                let report = CameraReport {
+                    camera_id: camera.camera_id,
+                    width: camera.width,
+                    height: camera.height,
+                    images: self.images.iter().filter(|i| &i.camera == name).count(),
+                    calibrated: self.calibrated.contains(name),
+                };
+                (name.clone(), report)
+            })
+            .collect()
+    }
+}
+
+/// A reconstruction job over one work folder: the store (`database.db`),
+/// the image links COLMAP reads (`images/`), the models and exports.
+///
+/// ```no_run
+/// # use revisit_pipeline::{Workspace, ReconstructOptions, Cancel, Silent, locate::Tools, ingest};
+/// # fn main() -> Result<(), revisit_pipeline::PipelineError> {
+/// let mut workspace = Workspace::open("work".as_ref(), ReconstructOptions::default(), Tools::default())?;
+/// for spec in ["2019=/data/2019", "2020=/data/2020"] {
+///     let spec: ingest::SessionSpec = spec.parse().map_err(revisit_pipeline::PipelineError::Name)?;
+///     workspace.add_session(ingest::scan_session(&spec)?)?;
+/// }
+/// let report = workspace.run(&Silent, &Cancel::new())?;
+/// println!("{} models", report.models);
+/// # Ok(()) }
+/// ```
+pub struct Workspace {
+    dir: PathBuf,
+    store: Store,
+    options: ReconstructOptions,
+    tools: Tools,
+    python: PathBuf,
+    /// Sessions added, in visit order.
+    sessions: Vec<Session>,
+}
+
+/// Runs `f` and records its seconds under `stage`.
+fn timed<T>(
+    seconds: &mut BTreeMap<String, f64>,
+    stage: &str,
+    f: impl FnOnce() -> Result<T, PipelineError>,
+) -> Result<T, PipelineError> {
+    let start = Instant::now();
+    let out = f()?;
+    seconds.insert(stage.to_owned(), start.elapsed().as_secs_f64());
+    Ok(out)
+}
+
+impl Workspace {
+    /// Checks `options`, finds Python with pycolmap, and opens (or creates)
+    /// the work folder `dir` and its store. Options that shape stored work
+    /// (features, cameras) are pinned: a store holds one kind only.
+    pub fn open(dir: &Path, options: ReconstructOptions, tools: Tools) -> Result<Workspace, PipelineError> {
+        options.check()?;
+        let python = tools.python()?;
+        std::fs::create_dir_all(dir).map_err(|source| PipelineError::Io { path: dir.to_path_buf(), source })?;
+        let store = Store::open(&dir.join("database.db"))?;
+        let pin = |key: &str, value: Result<String, serde_json::Error>| -> Result<(), PipelineError> {
+            let value = value.map_err(|e| PipelineError::Name(e.to_string()))?;
+            Ok(store.pin_setting(key, &value)?)
+        };
+        pin("features", serde_json::to_string(&options.features))?;
+        pin("cameras", serde_json::to_string(&options.cameras))?;
+        Ok(Workspace { dir: dir.to_path_buf(), store, options, tools, python, sessions: Vec::new() })
+    }
+
+    pub fn dir(&self) -> &Path {
+        &self.dir
+    }
+
+    pub fn options(&self) -> &ReconstructOptions {
+        &self.options
+    }
+
+    pub fn store(&self) -> &Store {
+        &self.store
+    }
+
+    /// Sessions added so far, in visit order.
+    pub fn sessions(&self) -> &[Session] {
+        &self.sessions
+    }
+
+    /// Adds a session (a new visit goes after every stored one; a stored
+    /// one keeps its place), its cameras and its images to the store.
+    pub fn add_session(&mut self, images: SessionImages) -> Result<&Session, PipelineError> {
+        if self.sessions.iter().any(|s| s.name == images.name) {
+            return Err(PipelineError::DuplicateSession(images.name));
+        }
+        let record = self.store.ensure_session(&images.name, &images.dir.display().to_string())?;
+        let mut cameras = BTreeMap::new();
+        let mut calibrated = BTreeSet::new();
+        let mut camera_ids = BTreeMap::new();
+        for group in &images.cameras {
+            let spec = self.options.cameras.calibration(&images.name, &group.name);
+            let camera_error = |reason: String| PipelineError::Camera {
+                session: images.name.clone(),
+                camera: group.name.clone(),
+                reason,
+            };
+            let (camera, prior_focal_length) = initial_camera(spec, group.width, group.height, group.exif_focal_px)
+                .map_err(|e| camera_error(e.to_string()))?;
+            let key = if self.options.cameras.shared {
+                group.name.clone()
+            } else {
+                format!("{}/{}", images.name, group.name)
+            };
+            let stored =
+                self.store.ensure_camera(&key, &camera, prior_focal_length).map_err(|e| camera_error(e.to_string()))?;
+            camera_ids.insert(group.name.clone(), stored.camera_id);
+            if spec.is_some() {
+                calibrated.insert(group.name.clone());
+            }
+            cameras.insert(group.name.clone(), stored);
+        }
+        let mut session_images = Vec::new();
+        for (group, name) in images.images() {
+            let Some(&camera_id) = camera_ids.get(&group.name) else { continue };
+            let ids = self.store.ensure_images(&[name.to_string()], camera_id)?;
+            let Some(&id) = ids.get(&name.to_string()) else { continue };
+            let path = images.dir.join(name.file());
+            session_images.push(SessionImage { name, id, camera: group.name.clone(), path });
+        }
+        link_images(&self.dir, &images.name, &images.dir)?;
+        let session = Session {
+            name: images.name,
+            visit: record.visit,
+            dir: images.dir,
+            images: session_images,
+            cameras,
+            calibrated,
+        };
+        let at = self.sessions.partition_point(|s| s.visit < session.visit);
+        self.sessions.insert(at, session);
+        Ok(&self.sessions[at])
+    }
+
+    /// Runs every stage the options ask for, then maps, exports and writes
+    /// `report.json`. Each stage resumes from what the store holds.
+    pub fn run(&mut self, progress: &dyn Progress, cancel: &Cancel) -> Result<Report, PipelineError> {
+        let mut seconds = BTreeMap::new();
+        let strategy = self.options.cross;
+        // Visits are linked only when there are several.
+        let learned_strategy = strategy.learned() && self.sessions.len() >= 2;
+        // Open the learned models before any work, so a missing model fails fast.
+        let mut learned = match learned_strategy {
+            true => Some(self.open_learned()?),
+            false => None,
+        };
+        let features = timed(&mut seconds, "features", || {
+            stages::extract_features(&mut self.store, &self.sessions, &self.options.features, progress, cancel)
+        })?;
+        let mut cross_report = CrossReport::default();
+        // Learned features come before matching within visits: their keypoints
+        // join the SIFT ones there, so cross-visit tracks continue inside visits.
+        let learned_keypoints = match learned.as_mut() {
+            Some((_, learned)) => Some(timed(&mut seconds, "learned_features", || {
+                cross_report.learned_features = Some(self.extract_learned(learned, progress, cancel)?);
+                cross::register_learned_keypoints(&mut self.store, learned.method.name(), &self.sessions)
+            })?),
+            None => None,
+        };
+        let matching =
+            timed(&mut seconds, "matching", || self.match_sift(learned_keypoints.as_ref(), progress, cancel))?;
+        drop(learned_keypoints);
+        if let Some((runtime, learned)) = learned.as_mut() {
+            let places = match strategy.places() {
+                true => {
+                    Some(timed(&mut seconds, "places", || self.describe_places(runtime, learned, progress, cancel))?)
+                }
+                false => None,
+            };
+            cross_report.places = places.as_ref().map(|p| p.counts);
+            cross_report.learned_matching = Some(timed(&mut seconds, "learned_matching", || {
+                self.match_learned(learned, places.as_ref(), progress, cancel)
+            })?);
+        }
+        let outcome = timed(&mut seconds, "mapping", || self.map(cancel))?;
+        let chosen = export::chosen_model(&outcome.models, &self.sessions);
+        timed(&mut seconds, "export", || self.export(&outcome, chosen))?;
+
+        let records = self.store.pair_records()?;
+        let sessions = export::session_reports(&self.sessions, &outcome.models, chosen);
+        let chosen_model = chosen.and_then(|k| outcome.models.get(k));
+        let report = Report {
+            unlinked_sessions: export::unlinked_sessions(&sessions),
+            sessions,
+            models: outcome.models.len(),
+            model_sizes: outcome.models.iter().map(|m| m.registered_images.len()).collect(),
+            chosen_model: chosen_model.map(|m| m.path.clone()),
+            registered_rule: export::REGISTERED_RULE.to_owned(),
+            pairs: export::pair_reports(&records),
+            rolls: export::roll_histogram(&records),
+            features,
+            matching,
+            cross: cross_report,
+            mapping: MappingReport {
+                reused: outcome.reused,
+                extended: outcome.extended,
+                mean_reprojection_error_px: chosen_model.map(|m| m.mean_reprojection_error_px),
+            },
+            seconds,
+            options: self.options.clone(),
+        };
+        report.write(&self.dir.join("report.json"))?;
+        Ok(report)
+    }
+
+    /// ONNX Runtime and the learned method's models.
+    fn open_learned(&self) -> Result<(revisit_onnx::Runtime, Learned), PipelineError> {
+        let runtime = self.tools.onnxruntime(0)?;
+        let learned = Learned::open(&runtime, &self.tools.models(), self.options.learned)?;
+        Ok((runtime, learned))
+    }
+
+    /// Stage: learned features at the rolls each image needs.
+    pub fn extract_learned(
+        &mut self,
+        learned: &mut Learned,
+        progress: &dyn Progress,
+        cancel: &Cancel,
+    ) -> Result<StageCounts, PipelineError> {
+        let search = self.options.learned_matching.roll_search;
+        cross::extract_learned(&mut self.store, learned, &self.sessions, search, progress, cancel)
+    }
+
+    /// Stage: SIFT matching and verification of the pairs within visits (and
+    /// across, for `--cross sift`), with the learned keypoints alongside.
+    pub fn match_sift(
+        &mut self,
+        learned: Option<&LearnedKeypoints>,
+        progress: &dyn Progress,
+        cancel: &Cancel,
+    ) -> Result<StageCounts, PipelineError> {
+        let options = &self.options;
+        let pairs = match options.cross.sift_within() || self.sessions.len() < 2 {
+            true => stages::plan_pairs(&self.sessions, options.cross.sift_across(), &options.pairs),
+            false => Vec::new(),
+        };
+        let ids = self.sessions.iter().flat_map(|s| &s.images).map(|i| i.id);
+        let features = stages::load_features(&self.store, ids)?;
+        stages::match_pairs(
+            &mut self.store,
+            &pairs,
+            &features,
+            learned,
+            &options.matching,
+            &options.verify,
+            progress,
+            cancel,
+        )
+    }
+
+    /// Stage: global descriptors for place recognition.
+    pub fn describe_places(
+        &mut self,
+        runtime: &revisit_onnx::Runtime,
+        learned: &Learned,
+        progress: &dyn Progress,
+        cancel: &Cancel,
+    ) -> Result<Places, PipelineError> {
+        let search = self.options.learned_matching.roll_search;
+        let method = learned.method.name();
+        let source = &self.options.places.source;
+        cross::describe_places(&mut self.store, method, source, runtime, &self.sessions, search, progress, cancel)
+    }
+
+    /// Stage: the learned matcher on the pairs the strategy picks.
+    pub fn match_learned(
+        &mut self,
+        learned: &mut Learned,
+        places: Option<&Places>,
+        progress: &dyn Progress,
+        cancel: &Cancel,
+    ) -> Result<StageCounts, PipelineError> {
+        let options = &self.options;
+        let pairs = cross::plan_learned_pairs(options.cross, &self.sessions, places, &options.places.candidates);
+        cross::match_learned_pairs(&mut self.store, learned, &pairs, &options.learned_matching, progress, cancel)
+    }
+
+    /// Stage: one COLMAP run over the store (kept if the store did not
+    /// change, extended if images were added).
+    pub fn map(&mut self, cancel: &Cancel) -> Result<MappingOutcome, PipelineError> {
+        let records = self.store.pair_records()?;
+        let constant: Vec<CameraId> = self
+            .sessions
+            .iter()
+            .flat_map(|s| s.calibrated.iter().filter_map(|name| s.cameras.get(name)).map(|c| c.camera_id))
+            .collect::<BTreeSet<_>>()
+            .into_iter()
+            .collect();
+        let inputs = {
+            let inliers: usize = records.iter().map(|r| r.num_inliers).sum();
+            let names: Vec<String> = self.sessions.iter().flat_map(|s| &s.images).map(|i| i.name.to_string()).collect();
+            let cameras: Vec<&Camera> = self.sessions.iter().flat_map(|s| s.cameras.values()).collect();
+            format!(
+                "{} images {names:?}; cameras {cameras:?}, constant {constant:?}; {} pairs, {inliers} inliers; {:?}",
+                names.len(),
+                records.len(),
+                self.options.mapper
+            )
+        };
+        let database = self.dir.join("database.db");
+        let image_root = self.dir.join("images");
+        mapping::map(&self.python, &database, &image_root, &self.dir, &inputs, &constant, &self.options.mapper, cancel)
+    }
+
+    /// Stage: `poses.csv` and `points.ply` of the chosen model.
+    pub fn export(&self, outcome: &MappingOutcome, chosen: Option<usize>) -> Result<(), PipelineError> {
+        let Some(model) = chosen.and_then(|k| outcome.models.get(k)) else {
+            tracing::warn!("COLMAP registered no model: no poses.csv or points.ply");
+            return Ok(());
+        };
+        let reconstruction = revisit_colmap::read_model(&model.path)?;
+        let poses = self.dir.join("poses.csv");
+        let csv = export::poses_csv(&reconstruction)
+            .map_err(|e| PipelineError::Io { path: poses.clone(), source: std::io::Error::other(e) })?;
+        std::fs::write(&poses, csv).map_err(|source| PipelineError::Io { path: poses.clone(), source })?;
+        revisit_colmap::write_ply(&reconstruction, &self.dir.join("points.ply"), self.options.ply_colors)?;
+        Ok(())
+    }
+}
+
+/// The camera a group of images starts from: the given calibration, else
+/// COLMAP's default model with the EXIF focal length, else COLMAP's default
+/// guess. The flag says whether the focal length is known (COLMAP's
+/// `prior_focal_length`).
+fn initial_camera(
+    spec: Option<&CameraSpec>,
+    width: u32,
+    height: u32,
+    exif_focal_px: Option<f64>,
+) -> Result<(Camera, bool), revisit_core::CameraModelError> {
+    match (spec, exif_focal_px) {
+        (Some(spec), _) => Ok((Camera::new(0, spec.model, width, height, spec.params.clone())?, true)),
+        (None, Some(focal_px)) => {
+            let params = vec![focal_px, f64::from(width) / 2.0, f64::from(height) / 2.0, 0.0];
+            Ok((Camera::new(0, CameraModel::SimpleRadial, width, height, params)?, true))
+        }
+        (None, None) => Ok((Camera::default_for_size(0, width, height), false)),
+    }
+}
+
+/// `WORK/images/<session>` links to the session's folder, so that COLMAP
+/// finds `session/file` under one root.
+fn link_images(work: &Path, session: &str, dir: &Path) -> Result<(), PipelineError> {
+    let io = |path: &Path| {
+        let path = path.to_path_buf();
+        move |source| PipelineError::Io { path, source }
+    };
+    let root = work.join("images");
+    std::fs::create_dir_all(&root).map_err(io(&root))?;
+    let link = root.join(session);
+    if std::fs::read_link(&link).is_ok_and(|target| target == dir) {
+        return Ok(());
+    }
+    if link.symlink_metadata().is_ok() {
+        std::fs::remove_file(&link).map_err(io(&link))?;
+    }
+    std::os::unix::fs::symlink(dir, &link).map_err(io(&link))
+}
