@@ -146,6 +146,74 @@ fn killed_run_resumes_without_redoing_work() {
     assert_eq!(again["mapping"]["reused"], true);
 }
 
+/// Starts a reconstruction, sends `signal` (a `kill` name) once `ready`
+/// holds, and returns its exit code, stderr and the seconds from the signal
+/// to the exit.
+fn signal_when(args: &[&str], signal: &str, ready: impl Fn() -> bool) -> (Option<i32>, String, f64) {
+    let mut child = revisit().args(args).stderr(std::process::Stdio::piped()).spawn().unwrap();
+    let start = Instant::now();
+    while !ready() {
+        assert!(child.try_wait().unwrap().is_none(), "the run finished before it could be stopped");
+        assert!(start.elapsed() < Duration::from_secs(300), "nothing happened in 300 s");
+        std::thread::sleep(Duration::from_millis(10));
+    }
+    let sent = Instant::now();
+    let status = std::process::Command::new("kill").args([signal, &child.id().to_string()]).status().unwrap();
+    assert!(status.success(), "kill {signal} failed");
+    let output = child.wait_with_output().unwrap();
+    let secs = sent.elapsed().as_secs_f64();
+    (output.status.code(), String::from_utf8_lossy(&output.stderr).into_owned(), secs)
+}
+
+#[test]
+fn sigint_and_sigterm_stop_after_the_item_in_flight_and_a_rerun_resumes() {
+    let data = tempfile::tempdir().unwrap();
+    let frames = data.path().join("frames");
+    copy_first(&shared_data("subvo/images"), 24, &frames);
+    let session = format!("pool={}", frames.display());
+    let work = data.path().join("work");
+    let args = [
+        "reconstruct",
+        "--session",
+        &session,
+        "--out",
+        work.to_str().unwrap(),
+        "--max-image-size",
+        "640",
+        "--max-features",
+        "1024",
+        "--ignore-region",
+        "0,0,200,30",
+    ];
+    let database = work.join("database.db");
+    let stopped = |(code, stderr, secs): (Option<i32>, String, f64), want: i32, name: &str| {
+        let lines: Vec<&str> = stderr.lines().filter(|l| l.contains("stopped")).collect();
+        assert_eq!(code, Some(want), "{stderr}");
+        assert!(secs < 2.0, "{name} took {secs:.2} s to stop");
+        assert_eq!(lines.len(), 1, "{stderr}");
+        assert!(lines[0].contains(name) && lines[0].contains("resume"), "{stderr}");
+    };
+    // SIGTERM during feature extraction, SIGINT (Ctrl-C) during matching.
+    stopped(signal_when(&args, "-TERM", || count_features(&database) >= 4), 143, "SIGTERM");
+    let features_at_stop = count_features(&database);
+    assert!(features_at_stop < 24, "extraction had finished");
+    stopped(signal_when(&args, "-INT", || count_pairs(&database) >= 1), 130, "SIGINT");
+    let pairs_at_stop = count_pairs(&database);
+    assert_eq!(count_features(&database), 24);
+
+    // The store is intact, and the re-run redoes no finished image or pair.
+    let store = revisit_store::Store::open_read_only(&database).unwrap();
+    for record in store.pair_records().unwrap() {
+        store.two_view_geometry(revisit_core::pair_id(record.image_id1, record.image_id2)).unwrap().unwrap();
+    }
+    drop(store);
+    run_ok(&args);
+    let report = read_json(&work.join("report.json"));
+    assert_eq!(report["features"]["done"], 0, "{report:#}");
+    assert_eq!(report["matching"]["reused"].as_u64().unwrap() as usize, pairs_at_stop, "{report:#}");
+    assert_eq!(report["models"], 1, "{report:#}");
+}
+
 #[test]
 fn bad_input_gets_one_line_errors_and_keeps_the_store() {
     let data = tempfile::tempdir().unwrap();
@@ -184,12 +252,17 @@ fn bad_input_gets_one_line_errors_and_keeps_the_store() {
     let err = err_of(&["--session", &good, "--session", &good]);
     assert!(err.contains("session pool is given twice"), "{err}");
 
+    // A camera (a sub-folder) holds one image size.
     let mixed = data.path().join("mixed");
-    copy_first(&frames, 2, &mixed);
-    image::RgbImage::new(64, 48).save(mixed.join("zz_small.png")).unwrap();
+    copy_first(&frames, 2, &mixed.join("left"));
+    image::RgbImage::new(64, 48).save(mixed.join("left/zz_small.png")).unwrap();
     let mixed_arg = format!("mixed={}", mixed.display());
     let err = err_of(&["--session", &good, "--session", &mixed_arg]);
-    assert!(err.contains("zz_small.png is 64x48"), "{err}");
+    assert!(err.contains("camera left") && err.contains("zz_small.png is 64x48"), "{err}");
+
+    // Names end up in CSV cells and SQL rows: control characters are refused.
+    let err = err_of(&["--session", &good, "--session", &format!("bad\nname={}", frames.display())]);
+    assert!(err.contains("--session") && err.contains("control character"), "{err}");
 
     let truncated = data.path().join("truncated");
     copy_first(&frames, 2, &truncated);

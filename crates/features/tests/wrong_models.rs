@@ -57,7 +57,7 @@ fn xfeat_with_wrong_channels_at_run_time_is_an_error_not_a_panic() {
     let mut xfeat = XFeat::open(&runtime(), &path, XFeatOptions::default()).unwrap();
     // 96 x 64 pixels: 12 x 8 cells, so `feats` comes back with 12 channels.
     let image = RgbImage::from_fn(96, 64, |x, y| image::Rgb([(x * 2) as u8, (y * 3) as u8, 90]));
-    let error = xfeat.extract(&image, Roll::R0).err().expect("12-channel feats were accepted");
+    let error = xfeat.extract(&image, Roll::R0).expect_err("12-channel feats were accepted");
     assert_names(&error, "xfeat_dynamic_feats.onnx", "feats", &["[1, 12, 8, 12]", "[1, 64, ?, ?]"]);
 }
 

@@ -25,12 +25,12 @@ pub struct SessionSpec {
 impl std::str::FromStr for SessionSpec {
     type Err = String;
 
-    /// Parses `NAME=DIR`; the name must be a valid session name.
+    /// Parses `NAME=DIR` ([`check_specs`] checks the name, so that a bad
+    /// one is reported on one line, escaped).
     fn from_str(arg: &str) -> Result<Self, String> {
         let Some((name, dir)) = arg.split_once('=') else {
             return Err(format!("{arg:?} is not NAME=DIR"));
         };
-        check_session_name(name).map_err(|e| e.to_string())?;
         if dir.is_empty() {
             return Err(format!("session {name} has no folder"));
         }
@@ -87,10 +87,11 @@ impl SessionImages {
     }
 }
 
-/// Checks that no session name is given twice.
-pub fn check_unique(specs: &[SessionSpec]) -> Result<(), PipelineError> {
+/// Checks every session name, and that none is given twice.
+pub fn check_specs(specs: &[SessionSpec]) -> Result<(), PipelineError> {
     let mut seen = BTreeSet::new();
     for spec in specs {
+        check_session_name(&spec.name).map_err(|e| PipelineError::Name(e.to_string()))?;
         if !seen.insert(spec.name.as_str()) {
             return Err(PipelineError::DuplicateSession(spec.name.clone()));
         }
@@ -205,14 +206,18 @@ mod tests {
         assert_eq!(spec.dir, PathBuf::from("/data/a=b"));
         assert!("nodir".parse::<SessionSpec>().is_err());
         assert!("a/b=/x".parse::<SessionSpec>().is_err());
-        assert!("=/x".parse::<SessionSpec>().is_err());
-        assert!("a\nb=/x".parse::<SessionSpec>().is_err());
     }
 
     #[test]
-    fn duplicate_names_are_rejected() {
+    fn bad_and_duplicate_names_are_rejected() {
         let specs: Vec<SessionSpec> = ["a=/x", "b=/y", "a=/z"].iter().map(|s| s.parse().unwrap()).collect();
-        assert_eq!(check_unique(&specs).unwrap_err().to_string(), "session a is given twice");
+        assert_eq!(check_specs(&specs).unwrap_err().to_string(), "session a is given twice");
+        for bad in ["a/b=/x", "=/x", "a\nb=/x"] {
+            let specs = [bad.parse::<SessionSpec>().unwrap()];
+            assert!(check_specs(&specs).is_err(), "{bad:?} was accepted");
+        }
+        let err = check_specs(&["a\nb=/x".parse().unwrap()]).unwrap_err().to_string();
+        assert!(!err.contains('\n') && err.contains("control character"), "{err}");
     }
 
     #[test]

@@ -115,7 +115,7 @@ fn a_descriptor_of_the_wrong_shape_is_named_with_its_output() {
     let dir = models();
     let mut places = OnnxPlaces::open(&runtime(), &dir.path().join("two_rows.onnx")).unwrap();
     let image = RgbImage::from_pixel(64, 48, Rgb([10, 20, 30]));
-    let error = places.describe(&image, Roll::R0).err().expect("a [2, 3] descriptor was accepted");
+    let error = places.describe(&image, Roll::R0).expect_err("a [2, 3] descriptor was accepted");
     assert!(matches!(error, OnnxError::Output { ref output, .. } if output == "descriptor"), "{error}");
     let message = error.to_string();
     assert!(message.contains("two_rows.onnx") && message.contains("[2, 3]"), "{message}");

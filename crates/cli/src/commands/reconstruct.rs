@@ -227,7 +227,7 @@ impl Args {
 
 /// Runs a reconstruction with progress bars; `cancel` stops it between items.
 pub fn reconstruct(args: &Args, cancel: &revisit_pipeline::Cancel) -> Result<Report> {
-    ingest::check_unique(&args.sessions).context("--session")?;
+    ingest::check_specs(&args.sessions).context("--session")?;
     let sessions = args
         .sessions
         .iter()
