@@ -245,17 +245,12 @@ fn cross_error(model: &Path, truth: &Path) -> Result<(Option<f64>, usize)> {
 /// Truth overlaps between images of different sessions, by image name.
 fn read_overlaps(truth: &Path) -> Result<Vec<(String, String, f64)>> {
     let path = truth.join("overlaps.csv");
-    let text = std::fs::read_to_string(&path).with_context(|| path.display().to_string())?;
-    let mut out = Vec::new();
-    for (line, row) in text.lines().enumerate().skip(1) {
-        let fields: Vec<&str> = row.split(',').collect();
-        let [a, b, overlap] = fields[..] else {
-            anyhow::bail!("{}: row {}: expected img0,img1,overlap", path.display(), line + 1);
-        };
-        let overlap: f64 = overlap.parse().with_context(|| format!("{}: row {}", path.display(), line + 1))?;
-        out.push((a.to_owned(), b.to_owned(), overlap));
-    }
-    Ok(out)
+    let mut reader = csv::Reader::from_path(&path).with_context(|| path.display().to_string())?;
+    reader
+        .deserialize::<(String, String, f64)>()
+        .enumerate()
+        .map(|(k, row)| row.with_context(|| format!("{}: row {}: expected img0,img1,overlap", path.display(), k + 2)))
+        .collect()
 }
 
 /// Recall@k of the place candidates against the truth: a query (an image of
