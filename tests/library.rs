@@ -8,7 +8,7 @@ mod common;
 
 use std::path::Path;
 
-use common::{python, repo, run_ok};
+use common::{python, run_ok};
 use revisit_pipeline::ingest::{scan_session, SessionSpec};
 use revisit_pipeline::locate::Tools;
 use revisit_pipeline::{Cancel, CrossStrategy, ReconstructOptions, Report, Silent, Workspace};
@@ -40,7 +40,7 @@ fn the_binary_and_the_library_give_the_same_report_and_poses() {
     let by_library = dir.path().join("library");
     let mut options = ReconstructOptions { cross: CrossStrategy::Sift, ..Default::default() };
     options.features.sift.max_num_features = 1024;
-    let tools = Tools { python: Some(python()), models: Some(repo().join("../shared/models")), onnxruntime: None };
+    let tools = Tools { python: Some(python()), models: Some(common::models()), onnxruntime: None };
     let mut workspace = Workspace::open(&by_library, options, tools).unwrap();
     for (name, folder) in &sessions {
         let spec = SessionSpec { name: (*name).to_owned(), dir: folder.clone() };

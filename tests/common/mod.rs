@@ -5,30 +5,17 @@
 use std::path::{Path, PathBuf};
 use std::process::{Command, Output};
 
-pub fn repo() -> PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR")).join("../..").canonicalize().expect("repository root")
-}
+pub use revisit_testkit::python;
 
 /// `../shared/data/<rel>` beside the checkout.
 pub fn shared_data(rel: &str) -> PathBuf {
-    let path = repo().join("../shared/data").join(rel);
-    assert!(path.exists(), "{} is missing: the tests need ../shared beside the checkout", path.display());
-    path
-}
-
-/// The project's Python (made by scripts/setup.sh); a missing one fails the test.
-pub fn python() -> PathBuf {
-    let python = repo().join(".venv/bin/python");
-    assert!(python.is_file(), "{} is missing: run scripts/setup.sh", python.display());
-    python
+    revisit_testkit::shared(&format!("data/{rel}"))
 }
 
 /// The shared model files (`../shared/models`), as a user points
 /// `REVISIT_MODELS` at them.
 pub fn models() -> PathBuf {
-    let path = repo().join("../shared/models");
-    assert!(path.is_dir(), "{} is missing: the tests need ../shared beside the checkout", path.display());
-    path
+    revisit_testkit::shared("models")
 }
 
 /// The `revisit` binary with the project's Python and the shared models.

@@ -3,24 +3,17 @@
 
 #![allow(clippy::unwrap_used, clippy::expect_used)] // test helpers panic on broken fixtures
 
-use std::path::{Path, PathBuf};
+use std::path::Path;
 
 use ndarray::ArrayD;
 use ndarray_npy::NpzReader;
 use revisit_core::{LearnedFeatures, Roll};
 use revisit_features::learned::{Aliked, Planar, XFeat, XFeatOptions};
 use revisit_onnx::{OnnxError, Runtime};
-
-fn shared(rel: &str) -> PathBuf {
-    let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../../shared").join(rel);
-    assert!(path.exists(), "{} is missing: the tests need ../shared beside the checkout", path.display());
-    path
-}
+use revisit_testkit::shared;
 
 fn runtime() -> Runtime {
-    let venv = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../.venv");
-    let library = revisit_onnx::libraries_in_venv(&venv).into_iter().next();
-    Runtime::load(&library.expect("ONNX Runtime in .venv (scripts/setup.sh)"), 0).expect("ONNX Runtime loads")
+    revisit_testkit::runtime(0)
 }
 
 fn npz(name: &str) -> NpzReader<std::fs::File> {

@@ -4,32 +4,21 @@
 
 #![allow(clippy::unwrap_used, clippy::expect_used)] // test helpers panic on broken fixtures
 
-use std::path::{Path, PathBuf};
-use std::process::Command;
+use std::path::Path;
 
 use image::RgbImage;
 use revisit_core::Roll;
 use revisit_features::learned::{Aliked, XFeat, XFeatOptions};
 use revisit_onnx::{OnnxError, Runtime};
-
-fn repo() -> PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR")).join("../..")
-}
-
-/// Generates the models into a fresh folder.
-fn models() -> tempfile::TempDir {
-    let dir = tempfile::tempdir().unwrap();
-    let python = repo().join(".venv/bin/python");
-    assert!(python.is_file(), "{} is missing: run scripts/setup.sh", python.display());
-    let script = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/wrong_models.py");
-    let status = Command::new(python).arg(&script).arg(dir.path()).status().unwrap();
-    assert!(status.success(), "{} failed", script.display());
-    dir
-}
+use revisit_testkit::generated_models;
 
 fn runtime() -> Runtime {
-    let library = revisit_onnx::libraries_in_venv(&repo().join(".venv")).into_iter().next();
-    Runtime::load(&library.expect("ONNX Runtime in .venv (scripts/setup.sh)"), 1).expect("ONNX Runtime loads")
+    revisit_testkit::runtime(1)
+}
+
+/// Generates the test models into a fresh folder.
+fn models() -> tempfile::TempDir {
+    generated_models(&Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/wrong_models.py"))
 }
 
 fn assert_names(error: &OnnxError, file: &str, output: &str, shapes: &[&str]) {

@@ -10,16 +10,12 @@ use revisit_pipeline::locate::Tools;
 use revisit_pipeline::{Cancel, CrossStrategy, ReconstructOptions, Silent, Workspace};
 use revisit_synth::{ChangeGrade, SynthOptions};
 
-fn repo() -> PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR")).join("../..").canonicalize().unwrap()
-}
-
 /// The project's Python and the shared models, as a user has them.
 fn tools() -> Tools {
     Tools {
-        python: Some(repo().join(".venv/bin/python")),
+        python: Some(revisit_testkit::python()),
         onnxruntime: None,
-        models: Some(repo().join("../shared/models")),
+        models: Some(revisit_testkit::shared("models")),
     }
 }
 

@@ -4,33 +4,21 @@
 
 #![allow(clippy::unwrap_used, clippy::expect_used)] // test helpers panic on broken fixtures
 
-use std::path::{Path, PathBuf};
-use std::process::Command;
+use std::path::Path;
 
 use image::{Rgb, RgbImage};
 use revisit_core::Roll;
 use revisit_onnx::{OnnxError, Runtime};
 use revisit_places::{nearest, CandidateOptions, GlobalDescriptor, OnnxPlaces};
+use revisit_testkit::generated_models;
 
-fn repo() -> PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR")).join("../..")
+fn runtime() -> Runtime {
+    revisit_testkit::runtime(1)
 }
 
 /// Generates the test models into a fresh folder.
 fn models() -> tempfile::TempDir {
-    let dir = tempfile::tempdir().unwrap();
-    let python = repo().join(".venv/bin/python");
-    assert!(python.is_file(), "{} is missing: run scripts/setup.sh", python.display());
-    let script = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/place_test_models.py");
-    let status = Command::new(python).arg(&script).arg(dir.path()).status().unwrap();
-    assert!(status.success(), "{} failed", script.display());
-    dir
-}
-
-fn runtime() -> Runtime {
-    let venv = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../.venv");
-    let library = revisit_onnx::libraries_in_venv(&venv).into_iter().next();
-    Runtime::load(&library.expect("ONNX Runtime in .venv (scripts/setup.sh)"), 1).expect("ONNX Runtime loads")
+    generated_models(&Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/place_test_models.py"))
 }
 
 /// A 640x480 image: four coloured quadrants, with a white square in the
