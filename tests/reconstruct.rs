@@ -82,15 +82,20 @@ fn count_pairs(database: &Path) -> usize {
     revisit_store::Store::open_read_only(database).and_then(|s| s.pair_records()).map(|s| s.len()).unwrap_or(0)
 }
 
-/// Starts a reconstruction and kills it (SIGKILL) once `ready` holds.
-fn kill_when(args: &[&str], ready: impl Fn() -> bool) {
-    let mut child = revisit().args(args).spawn().unwrap();
+/// Waits until `ready` holds while `child` runs.
+fn wait_until(child: &mut std::process::Child, ready: impl Fn() -> bool) {
     let start = Instant::now();
     while !ready() {
-        assert!(child.try_wait().unwrap().is_none(), "the run finished before it could be killed");
+        assert!(child.try_wait().unwrap().is_none(), "the run finished before it could be stopped");
         assert!(start.elapsed() < Duration::from_secs(300), "nothing happened in 300 s");
         std::thread::sleep(Duration::from_millis(10));
     }
+}
+
+/// Starts a reconstruction and kills it (SIGKILL) once `ready` holds.
+fn kill_when(args: &[&str], ready: impl Fn() -> bool) {
+    let mut child = revisit().args(args).spawn().unwrap();
+    wait_until(&mut child, ready);
     child.kill().unwrap();
     child.wait().unwrap();
 }
@@ -151,12 +156,7 @@ fn killed_run_resumes_without_redoing_work() {
 /// to the exit.
 fn signal_when(args: &[&str], signal: &str, ready: impl Fn() -> bool) -> (Option<i32>, String, f64) {
     let mut child = revisit().args(args).stderr(std::process::Stdio::piped()).spawn().unwrap();
-    let start = Instant::now();
-    while !ready() {
-        assert!(child.try_wait().unwrap().is_none(), "the run finished before it could be stopped");
-        assert!(start.elapsed() < Duration::from_secs(300), "nothing happened in 300 s");
-        std::thread::sleep(Duration::from_millis(10));
-    }
+    wait_until(&mut child, ready);
     let sent = Instant::now();
     let status = std::process::Command::new("kill").args([signal, &child.id().to_string()]).status().unwrap();
     assert!(status.success(), "kill {signal} failed");
