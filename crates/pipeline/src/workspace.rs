@@ -103,7 +103,7 @@ fn timed<T>(
 impl Workspace {
     /// Checks `options`, finds Python with pycolmap, and opens (or creates)
     /// the work folder `dir` and its store. Options that shape stored work
-    /// (features, cameras) are pinned: a store holds one kind only.
+    /// (features, shared cameras) are pinned: a store holds one kind only.
     pub fn open(dir: &Path, options: ReconstructOptions, tools: Tools) -> Result<Workspace, PipelineError> {
         options.check()?;
         let python = tools.python()?;
@@ -114,7 +114,8 @@ impl Workspace {
             Ok(store.pin_setting(key, &value)?)
         };
         pin("features", serde_json::to_string(&options.features))?;
-        pin("cameras", serde_json::to_string(&options.cameras))?;
+        // Whether visits share cameras decides which camera an image joins.
+        pin("shared_camera", serde_json::to_string(&options.cameras.shared))?;
         Ok(Workspace { dir: dir.to_path_buf(), store, options, tools, python, sessions: Vec::new() })
     }
 
@@ -167,14 +168,21 @@ impl Workspace {
             }
             cameras.insert(group.name.clone(), stored);
         }
-        let mut session_images = Vec::new();
-        for (group, name) in images.images() {
+        let mut ids = BTreeMap::new();
+        for group in &images.cameras {
             let Some(&camera_id) = camera_ids.get(&group.name) else { continue };
-            let ids = self.store.ensure_images(&[name.to_string()], camera_id)?;
-            let Some(&id) = ids.get(&name.to_string()) else { continue };
-            let path = images.dir.join(name.file());
-            session_images.push(SessionImage { name, id, camera: group.name.clone(), path });
+            let names: Vec<String> = group.files.iter().map(|f| revisit_core::image_name(&images.name, f)).collect();
+            ids.extend(self.store.ensure_images(&names, camera_id)?);
         }
+        let session_images = images
+            .images()
+            .into_iter()
+            .filter_map(|(group, name)| {
+                let id = *ids.get(&name.to_string())?;
+                let path = images.dir.join(name.file());
+                Some(SessionImage { name, id, camera: group.name.clone(), path })
+            })
+            .collect();
         link_images(&self.dir, &images.name, &images.dir)?;
         let session = Session {
             name: images.name,
