@@ -3,63 +3,13 @@
 use std::path::{Path, PathBuf};
 
 use anyhow::{Context, Result};
-use revisit_colmap::{Engine, PlyColors};
 use revisit_core::PairKind;
-use revisit_matching::RollSearch;
 use revisit_pipeline::ingest::{self, SessionSpec};
-use revisit_pipeline::learned::LearnedMethod;
-use revisit_pipeline::options::{CameraSpec, PlaceSource, ReconstructOptions};
-use revisit_pipeline::{CrossStrategy, Report, Workspace};
+use revisit_pipeline::{Report, Workspace};
 
-use crate::commands::models::{cross_strategies, learned_methods, ToolArgs};
+use crate::commands::models::ToolArgs;
+use crate::commands::options::OptionArgs;
 use crate::progress::Bars;
-
-#[derive(Clone, Copy, clap::ValueEnum)]
-enum RollSearchArg {
-    /// Decide the roll on the strongest keypoints of each image, then match
-    /// once in full (in full at every roll if no roll wins by --roll-margin).
-    Probe,
-    /// Match in full at every roll (4x the matching cost).
-    Full,
-    /// Roll 0 only: for visits flown at the same heading.
-    Off,
-}
-
-/// A calibrated camera for some cameras: `[SESSION[/CAMERA]=]MODEL:PARAMS`.
-#[derive(Clone, Debug)]
-struct CameraArg {
-    key: String,
-    spec: CameraSpec,
-}
-
-impl std::str::FromStr for CameraArg {
-    type Err = String;
-    fn from_str(s: &str) -> Result<Self, String> {
-        let (key, spec) = match s.split_once('=') {
-            Some((key, spec)) => (key.to_owned(), spec),
-            None => (String::new(), s),
-        };
-        Ok(CameraArg { key, spec: spec.parse()? })
-    }
-}
-
-/// A rectangle in pixels: X,Y,W,H.
-#[derive(Clone, Copy, Debug)]
-struct Region([u32; 4]);
-
-impl std::str::FromStr for Region {
-    type Err = String;
-    fn from_str(s: &str) -> Result<Self, String> {
-        let values: Vec<u32> = s
-            .split(',')
-            .map(|v| v.trim().parse::<u32>().map_err(|_| format!("{s:?} is not X,Y,W,H in whole pixels")))
-            .collect::<Result<_, _>>()?;
-        match values[..] {
-            [x, y, w, h] if w > 0 && h > 0 => Ok(Region([x, y, w, h])),
-            _ => Err(format!("{s:?} is not X,Y,W,H with a positive width and height")),
-        }
-    }
-}
 
 /// Reconstruct one or more sessions (visits of one site) jointly: SIFT within
 /// visits, learned matching across them, and ONE COLMAP mapping run.
@@ -81,159 +31,21 @@ pub struct Args {
     /// Work folder for the store and every output (created if missing).
     #[arg(long, value_name = "WORK")]
     out: PathBuf,
-    /// How images of different sessions are paired and matched.
-    #[arg(long, default_value = "vpr", value_parser = cross_strategies())]
-    cross: CrossStrategy,
-    /// The learned matcher.
-    #[arg(long, default_value = "aliked-lightglue", value_parser = learned_methods())]
-    learned: LearnedMethod,
-    /// How the roll (0/90/180/270 degrees) of the second image of a
-    /// cross-session pair is chosen.
-    #[arg(long, value_enum, default_value = "probe")]
-    roll_search: RollSearchArg,
-    /// Place recognition: each image of a later session is paired with its N
-    /// nearest images of earlier sessions.
-    #[arg(long, default_value_t = 5, value_name = "N")]
-    vpr_top_k: usize,
-    /// Place recognition: only candidates closer than D (L2 distance between
-    /// normalised global descriptors, 0..2).
-    #[arg(long, value_name = "D")]
-    vpr_max_distance: Option<f32>,
-    /// Place recognition: a global-descriptor ONNX model (RGB image [1, 3, H, W]
-    /// in 0..1 -> [1, D]), e.g. MegaLoc. Default: built-in VLAD over the
-    /// learned features, with a vocabulary learned from the survey.
-    #[arg(long, value_name = "ONNX")]
-    vpr_model: Option<PathBuf>,
-    /// A learned keypoint this close to a SIFT keypoint is matched as that
-    /// SIFT keypoint, which links cross-session matches to each session's tracks.
-    #[arg(long, default_value_t = revisit_matching::cross::DEFAULT_ANCHOR_RADIUS_PX, value_name = "PX")]
-    anchor_radius: f32,
-    /// Fewest verified inliers of a learned (cross-visit) pair.
-    #[arg(long, default_value_t = revisit_matching::CROSS_MIN_INLIERS, value_name = "N")]
-    cross_min_inliers: usize,
-    /// Largest epipolar error of a learned (cross-visit) inlier, pixels.
-    #[arg(long, default_value_t = 4.0, value_name = "PX")]
-    cross_max_error: f64,
-    /// A cross-visit pair is kept only if its roll's inliers are at least R
-    /// times those of the runner-up roll (chance matches find about as many
-    /// at every roll); a probe that no roll wins by R falls back to the full
-    /// search. 1 turns the check off.
-    #[arg(long, default_value_t = revisit_matching::roll::DEFAULT_ROLL_MARGIN, value_name = "R")]
-    roll_margin: f32,
-    /// Largest number of SIFT features per image (the strongest are kept).
-    #[arg(long, default_value_t = 4096, value_name = "N")]
-    max_features: usize,
-    /// Images whose larger side exceeds this are downscaled for extraction
-    /// (keypoints are reported in full-resolution pixels).
-    #[arg(long, default_value_t = 3200, value_name = "PX")]
-    max_image_size: u32,
-    /// A calibrated camera, [SESSION[/CAMERA]=]MODEL:PARAMS in COLMAP's
-    /// parameter order (e.g. PINHOLE:fx,fy,cx,cy or
-    /// OPENCV:fx,fy,cx,cy,k1,k2,p1,p2); its intrinsics are held fixed.
-    /// Without SESSION it applies to every camera; the most specific wins.
-    /// Repeatable. Cameras without one are self-calibrated, starting from
-    /// the EXIF focal length when the images carry one.
-    #[arg(long = "camera", value_name = "[SESSION[/CAMERA]=]MODEL:PARAMS")]
-    cameras: Vec<CameraArg>,
-    /// Visits flown with the same camera share its intrinsics: a camera of
-    /// one name and size is one COLMAP camera across visits, refined jointly
-    /// from all their images (stronger self-calibration than per visit).
-    #[arg(long)]
-    shared_camera: bool,
-    /// Upright SIFT (no orientation): only for cameras that never roll.
-    #[arg(long)]
-    upright: bool,
-    /// A region to ignore in every image, X,Y,W,H in pixels (e.g. a burned-in
-    /// timestamp). Repeatable.
-    #[arg(long = "ignore-region", value_name = "X,Y,W,H")]
-    ignore_regions: Vec<Region>,
-    /// Sessions of at most this many images are matched exhaustively; longer
-    /// ones with a sequential window plus periodic loop candidates.
-    #[arg(long, default_value_t = 100, value_name = "N")]
-    exhaustive_max_images: usize,
-    /// Long sessions: match each image with the next N.
-    #[arg(long, default_value_t = 10, value_name = "N")]
-    window: usize,
-    /// Long sessions: every N-th image is also matched with every other N-th.
-    #[arg(long, default_value_t = 5, value_name = "N")]
-    loop_period: usize,
-    /// The COLMAP mapper: incremental (extends the previous model when
-    /// sessions are added) or global (GLOMAP; rebuilds from scratch).
-    #[arg(long, value_enum, default_value = "incremental")]
-    mapper: MapperArg,
-    /// Seed of every random choice (RANSAC, COLMAP).
-    #[arg(long, default_value_t = 0)]
-    seed: u64,
-    /// How points.ply is coloured: rgb (the points' own colours) or session
-    /// (one colour per session).
-    #[arg(long, value_enum, default_value = "rgb")]
-    ply_colors: PlyColorsArg,
+    #[command(flatten)]
+    options: OptionArgs,
     #[command(flatten)]
     tools: ToolArgs,
 }
 
-#[derive(Clone, Copy, clap::ValueEnum)]
-enum MapperArg {
-    Incremental,
-    Global,
-}
-
-#[derive(Clone, Copy, clap::ValueEnum)]
-enum PlyColorsArg {
-    Rgb,
-    Session,
-}
-
-impl Args {
-    /// The pipeline's options from the arguments (checked by the pipeline).
-    fn options(&self) -> ReconstructOptions {
-        let mut options = ReconstructOptions { cross: self.cross, learned: self.learned, ..Default::default() };
-        let sift = &mut options.features.sift;
-        sift.max_num_features = self.max_features;
-        sift.upright = self.upright;
-        sift.ignore_regions_px = self.ignore_regions.iter().map(|r| r.0).collect();
-        options.features.max_image_size_px = self.max_image_size;
-        options.pairs.exhaustive_max_images = self.exhaustive_max_images;
-        options.pairs.window = self.window;
-        options.pairs.loop_period = self.loop_period;
-        let cross = &mut options.learned_matching;
-        cross.roll_search = match self.roll_search {
-            RollSearchArg::Probe => RollSearch::DEFAULT,
-            RollSearchArg::Full => RollSearch::Full,
-            RollSearchArg::Off => RollSearch::Off,
-        };
-        cross.roll_margin = self.roll_margin;
-        cross.anchor_radius_px = self.anchor_radius;
-        cross.verify.min_inliers = self.cross_min_inliers;
-        cross.verify.max_error_px = self.cross_max_error;
-        options.places.candidates.top_k = self.vpr_top_k;
-        options.places.candidates.max_distance = self.vpr_max_distance;
-        if let Some(model) = &self.vpr_model {
-            options.places.source = PlaceSource::Onnx(model.clone());
-        }
-        options.cameras.calibrated = self.cameras.iter().map(|c| (c.key.clone(), c.spec.clone())).collect();
-        options.cameras.shared = self.shared_camera;
-        options.mapper.engine = match self.mapper {
-            MapperArg::Incremental => Engine::Incremental,
-            MapperArg::Global => Engine::Global,
-        };
-        options.ply_colors = match self.ply_colors {
-            PlyColorsArg::Rgb => PlyColors::Rgb,
-            PlyColorsArg::Session => PlyColors::BySession,
-        };
-        options.with_seed(self.seed)
-    }
-}
-
 /// Runs a reconstruction with progress bars; `cancel` stops it between items.
-pub fn reconstruct(args: &Args, cancel: &revisit_pipeline::Cancel) -> Result<Report> {
+fn reconstruct(args: &Args, cancel: &revisit_pipeline::Cancel) -> Result<Report> {
     ingest::check_specs(&args.sessions).context("--session")?;
     let sessions = args
         .sessions
         .iter()
         .map(|spec| ingest::scan_session(spec).with_context(|| format!("--session {}", spec.name)))
         .collect::<Result<Vec<_>>>()?;
-    let mut workspace = Workspace::open(&args.out, args.options(), args.tools.tools())
+    let mut workspace = Workspace::open(&args.out, args.options.options(), args.tools.tools())
         .with_context(|| format!("--out {}", args.out.display()))?;
     for session in sessions {
         let name = session.name.clone();
