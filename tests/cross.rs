@@ -27,8 +27,13 @@ fn camera(reef: &Path) -> String {
 /// `revisit reconstruct` over `sessions` of the reef into `work`, with the
 /// calibrated camera and `extra` options.
 fn reconstruct(reef: &Path, sessions: &[&str], work: &Path, extra: &[&str]) -> serde_json::Value {
-    let mut args: Vec<String> =
-        vec!["reconstruct".into(), "--out".into(), work.display().to_string(), "--camera".into(), camera(reef)];
+    let camera = ["--camera".to_owned(), camera(reef)];
+    reconstruct_uncalibrated(reef, sessions, work, &[&camera.each_ref().map(String::as_str)[..], extra].concat())
+}
+
+/// `revisit reconstruct` over `sessions` of the reef into `work` with `extra` options only.
+fn reconstruct_uncalibrated(reef: &Path, sessions: &[&str], work: &Path, extra: &[&str]) -> serde_json::Value {
+    let mut args: Vec<String> = vec!["reconstruct".into(), "--out".into(), work.display().to_string()];
     for name in sessions {
         args.push("--session".into());
         args.push(format!("{name}={}", reef.join("sessions").join(name).display()));
@@ -99,6 +104,20 @@ fn strong_change_links_with_place_recognition_and_roll_search_not_with_sift() {
     assert!(rolls.keys().any(|r| r != "0"), "no pair needed a roll: {report:#}");
     let cross_tried = report["pairs"]["cross"]["tried"].as_u64().unwrap();
     assert!(cross_tried < 3 * IMAGES * IMAGES, "place recognition sent every pair: {report:#}");
+
+    // Without the calibration, visits flown with one camera share it and
+    // refine it jointly: nearly as accurate as the calibrated camera.
+    let shared = dir.path().join("shared-camera");
+    let report = reconstruct_uncalibrated(&reef, &three, &shared, &["--shared-camera"]);
+    assert_eq!(fully_registered(&report), three, "{report:#}");
+    let camera_ids: Vec<&serde_json::Value> =
+        three.iter().map(|s| &report["sessions"][s]["cameras"]["640x480"]["camera_id"]).collect();
+    assert!(camera_ids.iter().all(|id| *id == camera_ids[0]), "{report:#}");
+    let shared_error = cross_error_px(&reef, &three, &shared).expect("clicks scored");
+    assert!(
+        shared_error <= 1.25 * error,
+        "shared camera: median cross-visit error {shared_error} px, calibrated {error} px"
+    );
 
     // A fourth visit: only its own work is done, and the model is extended.
     let before = report;
