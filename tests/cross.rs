@@ -188,6 +188,20 @@ fn cross_visit_bad_input_gets_one_line_errors() {
     let wrong = two(&["--models", models.to_str().unwrap()]);
     assert!(wrong.contains("aliked_n16_480x640.onnx"), "{wrong}");
 
+    // A model whose outputs have the wrong shape: named with the output, no panic.
+    let generated =
+        revisit_testkit::generated_models(&revisit_testkit::repo().join("crates/features/tests/wrong_models.py"));
+    std::fs::copy(generated.path().join("xfeat_32_feats.onnx"), models.join("xfeat_backbone.onnx")).unwrap();
+    std::fs::copy(shared.join("lighterglue_xfeat.onnx"), models.join("lighterglue_xfeat.onnx")).unwrap();
+    let wrong = two(&["--models", models.to_str().unwrap(), "--learned", "xfeat-lighterglue"]);
+    assert!(wrong.contains("xfeat_backbone.onnx") && wrong.contains("feats"), "{wrong}");
+
+    // A model not made yet: the file and the command that makes it.
+    let empty = root.join("no-models");
+    std::fs::create_dir_all(&empty).unwrap();
+    let missing = two(&["--models", empty.to_str().unwrap()]);
+    assert!(missing.contains("aliked_n16_480x640.onnx") && missing.contains("scripts/get-models.sh"), "{missing}");
+
     let one = format!("b={}", b.display());
     let stderr = run_err(&["reconstruct", "--out", &work, "--session", &one]);
     assert!(stderr.contains("one image") && stderr.contains("session b"), "{stderr}");
