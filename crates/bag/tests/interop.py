@@ -1,0 +1,141 @@
+"""Independent ROS 2 readers and writers for Revisit's bag tests.
+
+check BAG EXPECTED.json   decode every message of a Revisit-written mcap bag with mcap-ros2-support and
+                          with rosbags; each must equal the values Revisit wrote (EXPECTED: topic ->
+                          {type, schema, values}).
+write DIR EXPECTED.json   write EXPECTED's messages with independent encoders: DIR/rosbags_db3 (sqlite3)
+                          and DIR/rosbags_mcap (rosbags, with its own definitions of ROS's types), and
+                          DIR/mcap_ros2.mcap (mcap-ros2-support).
+"""
+import dataclasses
+import json
+import sys
+from pathlib import Path
+
+import numpy as np
+from mcap.reader import make_reader
+from mcap_ros2.decoder import DecoderFactory
+from mcap_ros2.writer import Writer as McapRos2Writer
+from rosbags.highlevel import AnyReader
+from rosbags.rosbag2 import StoragePlugin, Writer as RosbagsWriter
+from rosbags.typesys import Stores, get_types_from_msg, get_typestore
+from rosbags.typesys.store import Nodetype
+
+REVISIT_MSGS = Path(__file__).resolve().parents[3] / "msgs" / "revisit_msgs" / "msg"
+
+
+def plain(value):
+    """A decoded message as JSON-like values: objects to dicts, byte strings and arrays to lists."""
+    if isinstance(value, (bytes, bytearray)):
+        return list(value)
+    if isinstance(value, np.ndarray):
+        return value.tolist()
+    if isinstance(value, (list, tuple)):
+        return [plain(v) for v in value]
+    if isinstance(value, np.generic):
+        return value.item()
+    if dataclasses.is_dataclass(value):  # rosbags: fields as its typestore defines them, not constants
+        _, fields = STORE.fielddefs[value.__msgtype__]
+        return {name: plain(getattr(value, name)) for name, _ in fields}
+    names = getattr(value, "__slots__", None)  # mcap-ros2-support
+    if names is not None:
+        return {n: plain(getattr(value, n)) for n in names if n != "__msgtype__"}
+    return value
+
+
+def compare(where, got, want):
+    if isinstance(want, dict):
+        if not isinstance(got, dict) or set(got) != set(want):
+            raise SystemExit(f"{where}: fields {sorted(got) if isinstance(got, dict) else got} != {sorted(want)}")
+        for k in want:
+            compare(f"{where}.{k}", got[k], want[k])
+    elif isinstance(want, list):
+        if not isinstance(got, list) or len(got) != len(want):
+            raise SystemExit(f"{where}: {got!r} != {want!r}")
+        for i, (g, w) in enumerate(zip(got, want)):
+            compare(f"{where}[{i}]", g, w)
+    else:
+        if isinstance(got, bytes) and len(got) == 1:  # a ROS `byte` scalar
+            got = got[0]
+        if got != want or isinstance(got, bool) != isinstance(want, bool):
+            raise SystemExit(f"{where}: {got!r} != {want!r}")
+
+
+def typestore():
+    store = get_typestore(Stores.ROS2_HUMBLE)
+    for path in sorted(REVISIT_MSGS.glob("*.msg")):
+        store.register(get_types_from_msg(path.read_text(), f"revisit_msgs/msg/{path.stem}"))
+    return store
+
+
+STORE = typestore()
+
+
+def check(bag, expected):
+    bag = Path(bag)
+    decoded = {}
+    with open(next(bag.glob("*.mcap")), "rb") as f:
+        reader = make_reader(f, decoder_factories=[DecoderFactory()])
+        assert reader.get_header().profile == "ros2", reader.get_header()
+        for _, channel, _, message in reader.iter_decoded_messages(log_time_order=False):
+            decoded.setdefault(channel.topic, []).append(plain(message))
+    by_rosbags = {}
+    with AnyReader([bag], default_typestore=STORE) as reader:
+        for connection, _, raw in reader.messages():
+            by_rosbags.setdefault(connection.topic, []).append(plain(reader.deserialize(raw, connection.msgtype)))
+    for name, got in (("mcap-ros2-support", decoded), ("rosbags", by_rosbags)):
+        if set(got) != set(expected):
+            raise SystemExit(f"{name}: topics {sorted(set(got) ^ set(expected))} differ")
+        for topic, entry in expected.items():
+            compare(f"{name} {topic}", got[topic], entry["values"])
+    count = sum(len(e["values"]) for e in expected.values())
+    print(f"check: {count} messages of {len(expected)} types equal in mcap-ros2-support and rosbags")
+
+
+NUMPY = {"bool": np.bool_, "byte": np.uint8, "char": np.uint8, "int8": np.int8, "uint8": np.uint8,
+         "int16": np.int16, "uint16": np.uint16, "int32": np.int32, "uint32": np.uint32,
+         "int64": np.int64, "uint64": np.uint64, "float32": np.float32, "float64": np.float64}
+
+
+def build(store, typename, value):
+    """A rosbags message object of `typename` from JSON-like values."""
+    _, fields = store.fielddefs[typename]
+    return store.types[typename](**{name: build_field(store, desc, value[name]) for name, desc in fields})
+
+
+def build_field(store, desc, value):
+    kind, detail = desc
+    if kind == Nodetype.NAME:
+        return build(store, detail, value)
+    if kind == Nodetype.BASE:
+        return value
+    (sub_kind, sub_detail), _ = detail
+    if sub_kind == Nodetype.BASE and sub_detail[0] in NUMPY:
+        return np.array(value, dtype=NUMPY[sub_detail[0]])
+    return [build_field(store, (sub_kind, sub_detail), v) for v in value]
+
+
+def write(out, expected):
+    out = Path(out)
+    store = STORE
+    for storage, name in ((StoragePlugin.SQLITE3, "rosbags_db3"), (StoragePlugin.MCAP, "rosbags_mcap")):
+        with RosbagsWriter(out / name, version=8, storage_plugin=storage) as writer:
+            for topic, entry in expected.items():
+                connection = writer.add_connection(topic, entry["type"], typestore=store)
+                for i, value in enumerate(entry["values"]):
+                    message = build(store, entry["type"], value)
+                    writer.write(connection, 1_000_000_000 + i, store.serialize_cdr(message, entry["type"]))
+    with open(out / "mcap_ros2.mcap", "wb") as f:
+        writer = McapRos2Writer(f)
+        for topic, entry in expected.items():
+            schema = writer.register_msgdef(entry["type"], entry["schema"])
+            for i, value in enumerate(entry["values"]):
+                writer.write_message(topic, schema, value, log_time=1_000_000_000 + i, publish_time=1_000_000_000 + i)
+        writer.finish()
+    print(f"write: {out}")
+
+
+if __name__ == "__main__":
+    command, path, expected_path = sys.argv[1:]
+    expected = json.loads(Path(expected_path).read_text())
+    {"check": check, "write": write}[command](path, expected)
