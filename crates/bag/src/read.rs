@@ -200,7 +200,7 @@ pub struct Messages {
 
 enum Source {
     Mcap(Box<McapSource>),
-    Sqlite(SqliteSource),
+    Sqlite(Box<SqliteSource>),
 }
 
 impl Iterator for Messages {
@@ -214,7 +214,7 @@ impl Iterator for Messages {
                     let path = self.files.pop_front()?;
                     let opened = match self.storage {
                         Storage::Mcap => McapSource::open(path).map(|s| Source::Mcap(Box::new(s))),
-                        Storage::Sqlite3 => SqliteSource::open(path).map(Source::Sqlite),
+                        Storage::Sqlite3 => SqliteSource::open(path).map(|s| Source::Sqlite(Box::new(s))),
                     };
                     match opened {
                         Ok(source) => self.current.insert(source),
