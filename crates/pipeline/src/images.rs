@@ -4,7 +4,8 @@
 
 use std::path::Path;
 
-use image::{DynamicImage, GrayImage, ImageFormat};
+use image::{DynamicImage, GrayImage, ImageFormat, Luma, Rgb, RgbImage};
+use revisit_msgs::sensor_msgs::{CompressedImage, Image};
 
 use crate::PipelineError;
 
@@ -127,5 +128,157 @@ mod tests {
     #[test]
     fn no_exif_means_no_focal_length() {
         assert_eq!(exif_focal_px(&jpeg(), 32, 24), None);
+    }
+}
+
+/// Decodes a `sensor_msgs/Image`: `rgb8`, `bgr8`, `rgba8`, `bgra8`, `mono8`, `mono16`, and
+/// `bayer_{rggb,bggr,gbrg,grbg}{8,16}` (debayered to RGB by averaging each colour's samples in
+/// the 3x3 neighbourhood). The data must be exactly `height` rows of `step` bytes. `origin` names
+/// the message in errors (bag, topic, time).
+pub fn from_raw(message: &Image, origin: &Path) -> Result<DynamicImage, PipelineError> {
+    let bad = |reason: String| PipelineError::BadImage { path: origin.to_path_buf(), reason };
+    let (width, height, step) = (message.width, message.height, message.step as usize);
+    let encoding = message.encoding.as_str();
+    let (channels, bytes_per_sample) = match encoding {
+        "mono8" => (1, 1),
+        "mono16" => (1, 2),
+        "rgb8" | "bgr8" => (3, 1),
+        "rgba8" | "bgra8" => (4, 1),
+        e if e.starts_with("bayer_") && e.ends_with('8') => (1, 1),
+        e if e.starts_with("bayer_") && e.ends_with("16") => (1, 2),
+        other => {
+            return Err(bad(format!(
+                "encoding {other:?} is not one of rgb8, bgr8, rgba8, bgra8, mono8, mono16, bayer_*8, bayer_*16"
+            )))
+        }
+    };
+    let row_bytes = width as usize * channels * bytes_per_sample;
+    if width == 0 || height == 0 || step < row_bytes {
+        return Err(bad(format!("{width}x{height} {encoding} needs a step of at least {row_bytes}, not {step}")));
+    }
+    if (message.data.len() as u64) != step as u64 * u64::from(height) {
+        return Err(bad(format!(
+            "{} bytes of data, but {height} rows of step {step} are {}",
+            message.data.len(),
+            step as u64 * u64::from(height)
+        )));
+    }
+    let sample = |x: u32, y: u32, c: usize| -> u16 {
+        let at = y as usize * step + (x as usize * channels + c) * bytes_per_sample;
+        match bytes_per_sample {
+            1 => u16::from(message.data[at]),
+            _ if message.is_bigendian != 0 => u16::from_be_bytes([message.data[at], message.data[at + 1]]),
+            _ => u16::from_le_bytes([message.data[at], message.data[at + 1]]),
+        }
+    };
+    let image = match encoding {
+        "mono8" => DynamicImage::ImageLuma8(GrayImage::from_fn(width, height, |x, y| Luma([sample(x, y, 0) as u8]))),
+        "mono16" => DynamicImage::ImageLuma16(image::ImageBuffer::from_fn(width, height, |x, y| Luma([sample(x, y, 0)]))),
+        "rgb8" | "rgba8" => {
+            DynamicImage::ImageRgb8(RgbImage::from_fn(width, height, |x, y| Rgb([0, 1, 2].map(|c| sample(x, y, c) as u8))))
+        }
+        "bgr8" | "bgra8" => {
+            DynamicImage::ImageRgb8(RgbImage::from_fn(width, height, |x, y| Rgb([2, 1, 0].map(|c| sample(x, y, c) as u8))))
+        }
+        bayer => {
+            let pattern = bayer_pattern(bayer).ok_or_else(|| bad(format!("unknown Bayer pattern in {bayer:?}")))?;
+            let shift = if bytes_per_sample == 2 { 8 } else { 0 };
+            DynamicImage::ImageRgb8(debayer(width, height, pattern, |x, y| sample(x, y, 0) >> shift))
+        }
+    };
+    Ok(image)
+}
+
+/// Decodes a `sensor_msgs/CompressedImage` (`jpeg` or `png`) by [`decode`]'s policy.
+pub fn from_compressed(message: &CompressedImage, origin: &Path) -> Result<DynamicImage, PipelineError> {
+    decode(&message.data, origin)
+}
+
+/// The colour (0 red, 1 green, 2 blue) at (x % 2, y % 2) as `pattern[y % 2 * 2 + x % 2]`.
+fn bayer_pattern(encoding: &str) -> Option<[usize; 4]> {
+    let name = encoding.strip_prefix("bayer_")?.trim_end_matches(|c: char| c.is_ascii_digit());
+    let colour = |c: u8| match c {
+        b'r' => Some(0),
+        b'g' => Some(1),
+        b'b' => Some(2),
+        _ => None,
+    };
+    let [a, b, c, d] = name.as_bytes() else { return None };
+    Some([colour(*a)?, colour(*b)?, colour(*c)?, colour(*d)?])
+}
+
+/// Bilinear-style demosaicing: each colour is the mean of that colour's samples in the 3x3
+/// neighbourhood (the pixel's own sample for its own colour).
+fn debayer(width: u32, height: u32, pattern: [usize; 4], sample: impl Fn(u32, u32) -> u16) -> RgbImage {
+    let colour_at = |x: u32, y: u32| pattern[(y % 2 * 2 + x % 2) as usize];
+    RgbImage::from_fn(width, height, |x, y| {
+        let own = colour_at(x, y);
+        let mut sums = [0u32; 3];
+        let mut counts = [0u32; 3];
+        for ny in y.saturating_sub(1)..=(y + 1).min(height - 1) {
+            for nx in x.saturating_sub(1)..=(x + 1).min(width - 1) {
+                let colour = colour_at(nx, ny);
+                if colour == own && (nx, ny) != (x, y) {
+                    continue;
+                }
+                sums[colour] += u32::from(sample(nx, ny));
+                counts[colour] += 1;
+            }
+        }
+        Rgb([0, 1, 2].map(|c| if counts[c] == 0 { 0 } else { (sums[c] / counts[c]).min(255) as u8 }))
+    })
+}
+
+#[cfg(test)]
+mod message_tests {
+    use super::*;
+
+    fn raw(width: u32, height: u32, encoding: &str, step: u32, data: Vec<u8>) -> Image {
+        Image { width, height, encoding: encoding.into(), step, data, ..Image::default() }
+    }
+
+    fn origin() -> &'static Path {
+        Path::new("bag:/camera/image_raw@1")
+    }
+
+    #[test]
+    fn bgr8_swaps_to_rgb_and_honours_row_padding() -> Result<(), PipelineError> {
+        // Two pixels a row, rows padded to 8 bytes.
+        let data = vec![1, 2, 3, 4, 5, 6, 0, 0, 7, 8, 9, 10, 11, 12, 0, 0];
+        let image = from_raw(&raw(2, 2, "bgr8", 8, data), origin())?.to_rgb8();
+        assert_eq!(image.get_pixel(0, 0).0, [3, 2, 1]);
+        assert_eq!(image.get_pixel(1, 1).0, [12, 11, 10]);
+        Ok(())
+    }
+
+    #[test]
+    fn mono16_reads_either_byte_order() -> Result<(), PipelineError> {
+        let mut message = raw(1, 1, "mono16", 2, vec![0x12, 0x34]);
+        assert_eq!(from_raw(&message, origin())?.to_luma16().get_pixel(0, 0).0, [0x3412]);
+        message.is_bigendian = 1;
+        assert_eq!(from_raw(&message, origin())?.to_luma16().get_pixel(0, 0).0, [0x1234]);
+        Ok(())
+    }
+
+    #[test]
+    fn bayer_of_one_colour_debayers_to_that_colour() -> Result<(), PipelineError> {
+        // An orange scene (200, 100, 50) seen through an RGGB mosaic.
+        let (r, g, b) = (200, 100, 50);
+        let data = (0..4 * 4).map(|i| match (i % 4 % 2, i / 4 % 2) { (0, 0) => r, (1, 1) => b, _ => g }).collect();
+        let image = from_raw(&raw(4, 4, "bayer_rggb8", 4, data), origin())?.to_rgb8();
+        assert!(image.pixels().all(|p| p.0 == [r, g, b]), "{:?}", image.pixels().collect::<Vec<_>>());
+        Ok(())
+    }
+
+    #[test]
+    fn a_wrong_data_length_or_encoding_is_one_error_naming_the_message() {
+        let short = from_raw(&raw(2, 2, "mono8", 2, vec![0; 3]), origin()).map(|_| ());
+        let message = short.err().map(|e| e.to_string()).unwrap_or_default();
+        assert!(message.contains("bag:/camera/image_raw@1") && message.contains("3 bytes"), "{message}");
+        let yuv = from_raw(&raw(2, 2, "yuv422", 4, vec![0; 8]), origin()).map(|_| ());
+        let message = yuv.err().map(|e| e.to_string()).unwrap_or_default();
+        assert!(message.contains("\"yuv422\""), "{message}");
+        let huge = from_raw(&raw(u32::MAX, u32::MAX, "rgb8", u32::MAX, vec![0; 8]), origin()).map(|_| ());
+        assert!(huge.is_err());
     }
 }
