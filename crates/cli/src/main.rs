@@ -32,6 +32,9 @@ enum Command {
     Eval(commands::eval::Args),
     /// Match two images (learned or SIFT, with roll search) and show the verified matches.
     Match(commands::match_pair::Args),
+    /// ROS 2 bags (mcap or sqlite3): info, export an image topic, pack image folders.
+    #[command(subcommand)]
+    Bag(commands::bag::Command),
     /// Benchmarks that print Revisit's figures beside a reference implementation.
     #[command(subcommand)]
     Bench(commands::bench::Bench),
@@ -48,6 +51,7 @@ fn main() -> std::process::ExitCode {
         Command::Synth(args) => commands::synth::run(args),
         Command::Eval(args) => commands::eval::run(args),
         Command::Match(args) => commands::match_pair::run(args),
+        Command::Bag(command) => commands::bag::run(command),
         Command::Bench(bench) => commands::bench::run(bench),
         Command::Doctor(args) => commands::doctor::run(args),
     };

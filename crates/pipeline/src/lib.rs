@@ -18,6 +18,7 @@
 //! Invariant: the stage libraries (`features`, `matching`, `places`) stay
 //! pure; this crate is where they meet files, the store and COLMAP.
 
+pub mod bags;
 pub mod cross;
 pub mod export;
 pub mod images;
@@ -51,6 +52,9 @@ pub enum PipelineError {
     DuplicateSession(String),
     #[error("{0}")]
     Name(String),
+    /// A bag that cannot be read or written, or a topic that holds no images.
+    #[error("{0}")]
+    Bag(String),
     #[error("{path}: unreadable image: {reason}")]
     BadImage { path: PathBuf, reason: String },
     #[error(

@@ -1,0 +1,301 @@
+//! Images in and out of rosbag2 bags: the frames of an image topic, exporting them to a folder,
+//! and packing image folders into a bag. The ingest node and `revisit bag` call these.
+
+use std::{
+    fs,
+    path::{Path, PathBuf},
+};
+
+use image::{DynamicImage, ImageFormat};
+use revisit_bag::{Bag, BagError, BagWriter, QosProfile, RawMessage, WrittenBag};
+use revisit_msgs::{
+    builtin_interfaces::Time,
+    revisit_msgs::SessionControl,
+    sensor_msgs::{CameraInfo, CompressedImage, Image},
+    std_msgs::Header,
+    Message,
+};
+
+use crate::{images, ingest::SessionImages, Cancel, PipelineError, Progress};
+
+/// The topic of visit markers ([`SessionControl`]) in bags Revisit writes.
+pub const SESSION_TOPIC: &str = "/revisit/session";
+
+/// One image message of a topic.
+pub struct Frame {
+    /// When the recorder received it, nanoseconds since the epoch.
+    pub log_time_ns: u64,
+    /// The header's stamp (capture time).
+    pub stamp: Time,
+    pub image: FrameImage,
+}
+
+/// A frame as it came: pixels (`sensor_msgs/Image`) or an image file's bytes
+/// (`sensor_msgs/CompressedImage`, kept as is so that exporting never re-encodes).
+pub enum FrameImage {
+    Raw(Image),
+    File { bytes: Vec<u8>, format: ImageFormat },
+}
+
+impl Frame {
+    pub fn decode(&self, origin: &Path) -> Result<DynamicImage, PipelineError> {
+        match &self.image {
+            FrameImage::Raw(message) => images::from_raw(message, origin),
+            FrameImage::File { bytes, .. } => images::decode(bytes, origin),
+        }
+    }
+}
+
+fn bag_error(error: BagError) -> PipelineError {
+    PipelineError::Bag(error.to_string())
+}
+
+/// Names a message in errors: `BAG topic TOPIC at LOG_TIME_NS`.
+pub fn origin(bag: &Bag, message: &RawMessage) -> PathBuf {
+    PathBuf::from(format!("{} topic {} at {} ns", bag.path().display(), message.topic.name, message.log_time_ns))
+}
+
+/// The frames of `topic`, in storage order. A message that does not decode is skipped and
+/// counted in `skipped` with its error; an unreadable bag is an error.
+pub fn frames<'a>(
+    bag: &'a Bag,
+    topic: &'a str,
+    skipped: &'a mut Vec<String>,
+) -> impl Iterator<Item = Result<Frame, PipelineError>> + 'a {
+    bag.messages().filter_map(move |message| {
+        let message = match message {
+            Ok(message) if message.topic.name == topic => message,
+            Ok(_) => return None,
+            Err(error @ BagError::BadMessage { .. }) => {
+                skipped.push(error.to_string());
+                return None;
+            }
+            Err(error) => return Some(Err(bag_error(error))),
+        };
+        let frame = frame_of(&message).map_err(|why| format!("{}: {why}", origin(bag, &message).display()));
+        match frame {
+            Ok(frame) => Some(Ok(frame)),
+            Err(why) if message.topic.type_name.ends_with("Image") => {
+                skipped.push(why);
+                None
+            }
+            Err(why) => Some(Err(PipelineError::Bag(why))),
+        }
+    })
+}
+
+fn frame_of(message: &RawMessage) -> Result<Frame, String> {
+    let type_name = message.topic.type_name.as_str();
+    if type_name == Image::DEFINITION.name {
+        let image: Image = revisit_msgs::decode(&message.data).map_err(|e| e.to_string())?;
+        let stamp = image.header.stamp;
+        return Ok(Frame { log_time_ns: message.log_time_ns, stamp, image: FrameImage::Raw(image) });
+    }
+    if type_name == CompressedImage::DEFINITION.name {
+        let image: CompressedImage = revisit_msgs::decode(&message.data).map_err(|e| e.to_string())?;
+        let format = image::guess_format(&image.data)
+            .ok()
+            .filter(|f| matches!(f, ImageFormat::Png | ImageFormat::Jpeg))
+            .ok_or_else(|| format!("compressed image format {:?} is not jpeg or png", image.format))?;
+        let stamp = image.header.stamp;
+        return Ok(Frame { log_time_ns: message.log_time_ns, stamp, image: FrameImage::File { bytes: image.data, format } });
+    }
+    Err(format!("type {type_name} is not sensor_msgs/msg/Image or sensor_msgs/msg/CompressedImage"))
+}
+
+/// What [`export`] wrote.
+#[derive(Debug, Default)]
+pub struct Exported {
+    pub images: usize,
+    /// Messages that did not decode, each with its error.
+    pub skipped: Vec<String>,
+}
+
+/// Writes the frames of `topic` to `out` as `NNNNNN.png` (raw images, lossless) or the
+/// compressed image's own file (`.jpg`, `.png`, never re-encoded), with `timestamps.csv`
+/// (`file,stamp_ns,log_time_ns`). A frame already written is not written again.
+pub fn export(bag: &Bag, topic: &str, out: &Path, progress: &dyn Progress, cancel: &Cancel) -> Result<Exported, PipelineError> {
+    let io = |path: &Path| {
+        let path = path.to_owned();
+        move |source| PipelineError::Io { path, source }
+    };
+    fs::create_dir_all(out).map_err(io(out))?;
+    let mut exported = Exported::default();
+    let mut rows = String::from("file,stamp_ns,log_time_ns\n");
+    let (mut skipped, mut undecodable) = (Vec::new(), Vec::new());
+    progress.start("export", 0);
+    for frame in frames(bag, topic, &mut skipped) {
+        cancel.check()?;
+        let frame = frame?;
+        let index = exported.images;
+        let (file, bytes) = match &frame.image {
+            FrameImage::File { bytes, format } => {
+                let extension = if *format == ImageFormat::Jpeg { "jpg" } else { "png" };
+                (format!("{index:06}.{extension}"), bytes.clone())
+            }
+            FrameImage::Raw(_) => {
+                let origin = PathBuf::from(format!("{} topic {topic} frame {index}", bag.path().display()));
+                let mut png = Vec::new();
+                let encoded = frame.decode(&origin).and_then(|image| {
+                    image
+                        .write_to(&mut std::io::Cursor::new(&mut png), ImageFormat::Png)
+                        .map_err(|e| PipelineError::BadImage { path: origin, reason: e.to_string() })
+                });
+                if let Err(error) = encoded {
+                    undecodable.push(error.to_string());
+                    continue;
+                }
+                (format!("{index:06}.png"), png)
+            }
+        };
+        let path = out.join(&file);
+        if !path.is_file() {
+            write_atomically(&path, &bytes)?;
+        }
+        rows.push_str(&format!("{file},{},{}\n", frame.stamp.as_nanos(), frame.log_time_ns));
+        exported.images += 1;
+        progress.advance();
+    }
+    progress.finish();
+    skipped.append(&mut undecodable);
+    exported.skipped = skipped;
+    if exported.images == 0 {
+        return Err(no_frames(bag, topic));
+    }
+    write_atomically(&out.join("timestamps.csv"), rows.as_bytes())?;
+    Ok(exported)
+}
+
+fn no_frames(bag: &Bag, topic: &str) -> PipelineError {
+    let topics = bag
+        .info()
+        .map(|info| {
+            let images: Vec<String> = info
+                .topics
+                .iter()
+                .filter(|t| t.topic.type_name.ends_with("Image"))
+                .map(|t| format!("{} ({})", t.topic.name, t.topic.type_name))
+                .collect();
+            if images.is_empty() { "none".to_owned() } else { images.join(", ") }
+        })
+        .unwrap_or_else(|e| e.to_string());
+    PipelineError::Bag(format!("{}: topic {topic} has no images; image topics: {topics}", bag.path().display()))
+}
+
+fn write_atomically(path: &Path, bytes: &[u8]) -> Result<(), PipelineError> {
+    let partial = path.with_extension("partial");
+    fs::write(&partial, bytes)
+        .and_then(|()| fs::rename(&partial, path))
+        .map_err(|source| PipelineError::Io { path: path.to_owned(), source })
+}
+
+/// How [`pack`] writes images.
+#[derive(Debug, Clone, Copy)]
+pub struct PackOptions {
+    /// Frames per second of each visit's timeline.
+    pub rate_hz: f64,
+    /// `sensor_msgs/CompressedImage` holding each file's bytes (lossless, small) instead of
+    /// decoded `sensor_msgs/Image`.
+    pub compressed: bool,
+}
+
+/// Log time of the first visit's first frame (2026-01-01T00:00:00Z); visits follow a day apart.
+pub const PACK_START_NS: u64 = 1_767_225_600_000_000_000;
+const DAY_NS: u64 = 86_400_000_000_000;
+
+/// The topic token of a camera name (ROS names are letters, digits and `_`, not starting with a
+/// digit): `640x480` becomes `camera_640x480`.
+pub fn camera_topic(camera: &str) -> String {
+    let token: String = camera.chars().map(|c| if c.is_ascii_alphanumeric() { c } else { '_' }).collect();
+    if token.starts_with(|c: char| c.is_ascii_alphabetic()) { format!("/{token}") } else { format!("/camera_{token}") }
+}
+
+/// Writes image folders as one bag: per visit, a [`SessionControl`] START on [`SESSION_TOPIC`],
+/// each camera's frames on `/CAMERA/image_raw` (or `/CAMERA/image_raw/compressed`) with its
+/// `/CAMERA/camera_info` (frame id = the camera's name; uncalibrated: zero K), then END. Visits
+/// start a day apart; frames are `1 / rate_hz` apart, cameras of one instant together.
+pub fn pack(
+    sessions: &[SessionImages],
+    out: &Path,
+    options: PackOptions,
+    progress: &dyn Progress,
+    cancel: &Cancel,
+) -> Result<WrittenBag, PipelineError> {
+    if !(options.rate_hz.is_finite() && options.rate_hz > 0.0) {
+        return Err(PipelineError::Bag(format!("--rate {} must be a positive number of frames per second", options.rate_hz)));
+    }
+    let frame_ns = (1e9 / options.rate_hz).round() as u64;
+    let mut writer = BagWriter::create(out).map_err(bag_error)?;
+    let control = writer.add_topic::<SessionControl>(SESSION_TOPIC, QosProfile::LATCHED).map_err(bag_error)?;
+    let mut camera_topics = std::collections::BTreeMap::new();
+    progress.start("pack", sessions.iter().map(|s| s.len() as u64).sum());
+    for (visit, session) in sessions.iter().enumerate() {
+        let start_ns = PACK_START_NS + visit as u64 * DAY_NS;
+        let marker = |command, time_ns| SessionControl {
+            header: Header { stamp: Time::from_nanos(time_ns as i64), frame_id: String::new() },
+            command,
+            session: session.name.clone(),
+            source: session.dir.display().to_string(),
+        };
+        writer.write(control, start_ns, &marker(SessionControl::START, start_ns)).map_err(bag_error)?;
+        let mut last_ns = start_ns;
+        let mut instant = 0u64;
+        let mut previous_base = None;
+        for (camera, name) in session.images() {
+            cancel.check()?;
+            let base = name.file().rsplit('/').next().unwrap_or_default().to_owned();
+            if previous_base.as_ref().is_some_and(|b| *b != base) {
+                instant += 1;
+            }
+            previous_base = Some(base);
+            let time_ns = start_ns + (instant + 1) * frame_ns;
+            last_ns = time_ns;
+            let topic = camera_topic(&camera.name);
+            if !camera_topics.contains_key(&topic) {
+                let image = if options.compressed {
+                    writer.add_raw_topic(&format!("{topic}/image_raw/compressed"), CompressedImage::DEFINITION, QosProfile::SENSOR_DATA)
+                } else {
+                    writer.add_raw_topic(&format!("{topic}/image_raw"), Image::DEFINITION, QosProfile::SENSOR_DATA)
+                };
+                let info = writer.add_topic::<CameraInfo>(&format!("{topic}/camera_info"), QosProfile::SENSOR_DATA);
+                camera_topics.insert(topic.clone(), (image.map_err(bag_error)?, info.map_err(bag_error)?));
+            }
+            let (image_topic, info_topic) = camera_topics[&topic];
+            let header = Header { stamp: Time::from_nanos(time_ns as i64), frame_id: camera.name.clone() };
+            let path = session.dir.join(name.file());
+            let bytes = fs::read(&path).map_err(|source| PipelineError::Io { path: path.clone(), source })?;
+            let decoded = images::decode(&bytes, &path)?;
+            let data = if options.compressed {
+                let format = if image::guess_format(&bytes).ok() == Some(ImageFormat::Jpeg) { "jpeg" } else { "png" };
+                revisit_msgs::encode(&CompressedImage { header: header.clone(), format: format.into(), data: bytes })
+            } else {
+                revisit_msgs::encode(&raw_image(header.clone(), &decoded))
+            }
+            .map_err(|e| PipelineError::Bag(format!("{}: {e}", path.display())))?;
+            writer.write_raw(image_topic, time_ns, &data).map_err(bag_error)?;
+            let info = CameraInfo { header, width: decoded.width(), height: decoded.height(), ..CameraInfo::default() };
+            writer.write(info_topic, time_ns, &info).map_err(bag_error)?;
+            progress.advance();
+        }
+        writer.write(control, last_ns + frame_ns, &marker(SessionControl::END, last_ns + frame_ns)).map_err(bag_error)?;
+    }
+    progress.finish();
+    writer.finish().map_err(bag_error)
+}
+
+/// A decoded image as `mono8` (grey sources) or `rgb8`.
+pub fn raw_image(header: Header, image: &DynamicImage) -> Image {
+    let (encoding, channels, data) = match image {
+        DynamicImage::ImageLuma8(grey) => ("mono8", 1, grey.as_raw().clone()),
+        other => ("rgb8", 3, other.to_rgb8().into_raw()),
+    };
+    Image {
+        header,
+        height: image.height(),
+        width: image.width(),
+        encoding: encoding.into(),
+        is_bigendian: 0,
+        step: image.width() * channels,
+        data,
+    }
+}
