@@ -9,6 +9,8 @@ use crate::{
 /// A message type known at run time.
 pub struct MessageType {
     pub definition: &'static Definition,
+    /// Whether CDR bytes decode as this type.
+    pub check: fn(&[u8]) -> Result<(), CdrError>,
     /// CDR bytes to the message's values as JSON (field names as in the `.msg` file).
     pub decode_json: fn(&[u8]) -> Result<serde_json::Value, CdrError>,
     /// A deterministic message with distinct values in every field ([`sample::message`]), as
@@ -19,6 +21,7 @@ pub struct MessageType {
 fn entry<M: Message>() -> MessageType {
     MessageType {
         definition: M::DEFINITION,
+        check: |bytes| crate::decode::<M>(bytes).map(drop),
         decode_json: |bytes| {
             let message: M = crate::decode(bytes)?;
             Ok(serde_json::to_value(&message).unwrap_or_default())

@@ -242,10 +242,17 @@ impl Iterator for Messages {
     }
 }
 
+/// mcap read with the crate's sans-IO [`mcap::sans_io::LinearReader`] (chunks decompressed,
+/// lengths checked against the file's size). Only schemas, channels and messages are parsed, and
+/// only after every length prefix in them is checked to fit its record: the crate's parser would
+/// otherwise allocate whatever a corrupt string length says.
 struct McapSource {
     path: PathBuf,
-    reader: mcap::io::MessageReader<BufReader<fs::File>>,
+    file: BufReader<fs::File>,
+    reader: mcap::sans_io::LinearReader,
+    schemas: HashMap<u16, (String, String)>,
     topics: HashMap<u16, Arc<Topic>>,
+    done: bool,
 }
 
 impl McapSource {
@@ -254,31 +261,112 @@ impl McapSource {
         let len = file.metadata().map_err(|source| BagError::Io { path: path.clone(), source })?.len();
         // No record can be longer than the file: a corrupt length fails instead of allocating.
         let options = mcap::sans_io::LinearReaderOptions::default()
+            .with_emit_chunks(false)
             .with_record_length_limit(usize::try_from(len).unwrap_or(usize::MAX));
-        let reader = mcap::io::MessageReader::new_with_options(BufReader::with_capacity(1 << 20, file), options);
-        Ok(McapSource { path, reader, topics: HashMap::new() })
+        Ok(McapSource {
+            path,
+            file: BufReader::with_capacity(1 << 20, file),
+            reader: mcap::sans_io::LinearReader::new_with_options(options),
+            schemas: HashMap::new(),
+            topics: HashMap::new(),
+            done: false,
+        })
     }
 
     fn next(&mut self) -> Option<Result<RawMessage, BagError>> {
-        let message = match self.reader.next()? {
-            Ok(message) => message,
-            Err(source) => return Some(Err(BagError::Mcap { path: self.path.clone(), source })),
-        };
-        let channel = &message.channel;
-        let topic = self.topics.entry(channel.id).or_insert_with(|| {
-            let (type_name, schema) = match &channel.schema {
-                Some(schema) => (schema.name.clone(), Some(String::from_utf8_lossy(&schema.data).into_owned())),
-                None => (String::new(), None),
-            };
-            Arc::new(Topic {
-                name: channel.topic.clone(),
-                type_name,
-                serialization_format: channel.message_encoding.clone(),
-                schema,
-            })
-        });
-        Some(Ok(RawMessage { topic: topic.clone(), log_time_ns: message.log_time, data: message.data.into_owned() }))
+        if self.done {
+            return None;
+        }
+        let result = self.next_message();
+        if !matches!(result, Some(Ok(_)) | Some(Err(BagError::BadMessage { .. }))) {
+            self.done = true;
+        }
+        result
     }
+
+    fn next_message(&mut self) -> Option<Result<RawMessage, BagError>> {
+        use mcap::{records::op, records::Record, sans_io::LinearReadEvent};
+        let corrupt = |path: &Path, source| BagError::Mcap { path: path.to_owned(), source };
+        loop {
+            let event = match self.reader.next_event()? {
+                Ok(event) => event,
+                Err(source) => return Some(Err(corrupt(&self.path, source))),
+            };
+            let (opcode, data) = match event {
+                LinearReadEvent::ReadRequest(need) => {
+                    let read = loop {
+                        match std::io::Read::read(&mut self.file, self.reader.insert(need)) {
+                            Ok(read) => break read,
+                            Err(error) if error.kind() == std::io::ErrorKind::Interrupted => continue,
+                            Err(source) => return Some(Err(BagError::Io { path: self.path.clone(), source })),
+                        }
+                    };
+                    self.reader.notify_read(read);
+                    continue;
+                }
+                LinearReadEvent::Record { opcode, data } => (opcode, data),
+            };
+            let fits = match opcode {
+                op::SCHEMA => prefixed_end(data, 2, 3).is_some(),
+                op::CHANNEL => prefixed_end(data, 4, 2).and_then(|end| string_map_end(data, end)).is_some(),
+                op::MESSAGE => true,
+                _ => continue,
+            };
+            if !fits {
+                let why = format!("corrupt mcap: a length in a record of opcode {opcode:#04x} runs past the record");
+                return Some(Err(BagError::NotABag { path: self.path.clone(), why }));
+            }
+            match mcap::parse_record(opcode, data) {
+                Ok(Record::Schema { header, data }) => {
+                    let text = String::from_utf8_lossy(&data).into_owned();
+                    self.schemas.insert(header.id, (header.name, text));
+                }
+                Ok(Record::Channel(channel)) => {
+                    let (type_name, schema) = match self.schemas.get(&channel.schema_id) {
+                        Some((name, text)) => (name.clone(), Some(text.clone())),
+                        None => (String::new(), None),
+                    };
+                    let topic = Topic {
+                        name: channel.topic,
+                        type_name,
+                        serialization_format: channel.message_encoding,
+                        schema,
+                    };
+                    self.topics.insert(channel.id, Arc::new(topic));
+                }
+                Ok(Record::Message { header, data }) => {
+                    let Some(topic) = self.topics.get(&header.channel_id) else {
+                        let why = format!("a message at {} ns names channel {}, which was not declared", header.log_time, header.channel_id);
+                        return Some(Err(BagError::BadMessage { path: self.path.clone(), why }));
+                    };
+                    return Some(Ok(RawMessage { topic: topic.clone(), log_time_ns: header.log_time, data: data.into_owned() }));
+                }
+                Ok(_) => {}
+                Err(source) => return Some(Err(corrupt(&self.path, source))),
+            }
+        }
+    }
+}
+
+/// The end of `count` u32-length-prefixed fields starting at `at`, if each fits in `record`.
+fn prefixed_end(record: &[u8], mut at: usize, count: usize) -> Option<usize> {
+    for _ in 0..count {
+        let len = u32::from_le_bytes(record.get(at..at + 4)?.try_into().ok()?) as usize;
+        at = at.checked_add(4)?.checked_add(len).filter(|&end| end <= record.len())?;
+    }
+    Some(at)
+}
+
+/// The end of a map of strings (u32 byte length, then key and value strings) at `at`, if it and
+/// every string in it fit in `record`.
+fn string_map_end(record: &[u8], at: usize) -> Option<usize> {
+    let end = prefixed_end(record, at, 1)?;
+    let map = &record[at + 4..end];
+    let mut inner = 0;
+    while inner < map.len() {
+        inner = prefixed_end(map, inner, 2)?;
+    }
+    Some(end)
 }
 
 /// rosbag2's sqlite3 storage: tables `topics(id, name, type, serialization_format, ...)` and
