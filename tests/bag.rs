@@ -32,7 +32,8 @@ fn the_t265_bag_lists_its_topics_and_its_fisheye_topics_export_to_folders() {
         ("/camera/accel/sample", "sensor_msgs/msg/Imu", 6),
         ("/camera/odom/sample", "nav_msgs/msg/Odometry", 19),
     ] {
-        let line = info.lines().find(|l| l.trim_start().starts_with(topic)).unwrap_or_else(|| panic!("{topic}:\n{info}"));
+        let line =
+            info.lines().find(|l| l.trim_start().starts_with(topic)).unwrap_or_else(|| panic!("{topic}:\n{info}"));
         assert!(line.contains(typ) && line.split_whitespace().any(|w| w == count.to_string()), "{line}");
     }
     assert!(info.contains("Messages:     50") && info.contains("Duration:     0.090"), "{info}");
@@ -64,7 +65,9 @@ fn the_t265_bag_lists_its_topics_and_its_fisheye_topics_export_to_folders() {
 fn make_session(dir: &Path, seed: u32, jpeg: bool) {
     std::fs::create_dir_all(dir).unwrap();
     for i in 0..3 {
-        let image = image::RgbImage::from_fn(64, 48, |x, y| image::Rgb([(x * 4 + i * 7 + seed) as u8, (y * 5) as u8, (x ^ y) as u8]));
+        let image = image::RgbImage::from_fn(64, 48, |x, y| {
+            image::Rgb([(x * 4 + i * 7 + seed) as u8, (y * 5) as u8, (x ^ y) as u8])
+        });
         let name = dir.join(format!("img_{i}.{}", if jpeg { "jpg" } else { "png" }));
         image.save(&name).unwrap();
     }
@@ -102,14 +105,23 @@ fn image_folders_pack_into_a_bag_and_export_back_unchanged() {
         let topic = if compressed { "/camera_64x48/image_raw/compressed" } else { "/camera_64x48/image_raw" };
         let out = work.path().join(format!("export_{compressed}"));
         stdout(&["bag", "export", bag.to_str().unwrap(), "--topic", topic, "--out", out.to_str().unwrap()]);
-        for (i, source) in ["a/img_0.png", "a/img_1.png", "a/img_2.png", "b/img_0.jpg", "b/img_1.jpg", "b/img_2.jpg"].iter().enumerate() {
+        for (i, source) in ["a/img_0.png", "a/img_1.png", "a/img_2.png", "b/img_0.jpg", "b/img_1.jpg", "b/img_2.jpg"]
+            .iter()
+            .enumerate()
+        {
             let source = work.path().join(source);
             let jpeg = source.extension().unwrap() == "jpg";
             let exported = out.join(format!("{i:06}.{}", if compressed && jpeg { "jpg" } else { "png" }));
             if compressed {
-                assert_eq!(std::fs::read(&exported).unwrap(), std::fs::read(&source).unwrap(), "{}", exported.display());
+                assert_eq!(
+                    std::fs::read(&exported).unwrap(),
+                    std::fs::read(&source).unwrap(),
+                    "{}",
+                    exported.display()
+                );
             } else {
-                let (got, want) = (image::open(&exported).unwrap().into_rgb8(), image::open(&source).unwrap().into_rgb8());
+                let (got, want) =
+                    (image::open(&exported).unwrap().into_rgb8(), image::open(&source).unwrap().into_rgb8());
                 assert_eq!(got, want, "{}", exported.display());
             }
         }
@@ -132,7 +144,15 @@ fn damaged_bags_and_wrong_arguments_are_one_line_errors() {
 
     let bag = shared_data("t265_locoffice");
     let out = work.path().join("out");
-    let error = run_err(&["bag", "export", bag.to_str().unwrap(), "--topic", "/camera/gyro/sample", "--out", out.to_str().unwrap()]);
+    let error = run_err(&[
+        "bag",
+        "export",
+        bag.to_str().unwrap(),
+        "--topic",
+        "/camera/gyro/sample",
+        "--out",
+        out.to_str().unwrap(),
+    ]);
     assert!(one_line(&error).contains("/camera/gyro/sample"), "{error}");
 
     let images = work.path().join("images");

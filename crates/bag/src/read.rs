@@ -336,10 +336,17 @@ impl McapSource {
                 }
                 Ok(Record::Message { header, data }) => {
                     let Some(topic) = self.topics.get(&header.channel_id) else {
-                        let why = format!("a message at {} ns names channel {}, which was not declared", header.log_time, header.channel_id);
+                        let why = format!(
+                            "a message at {} ns names channel {}, which was not declared",
+                            header.log_time, header.channel_id
+                        );
                         return Some(Err(BagError::BadMessage { path: self.path.clone(), why }));
                     };
-                    return Some(Ok(RawMessage { topic: topic.clone(), log_time_ns: header.log_time, data: data.into_owned() }));
+                    return Some(Ok(RawMessage {
+                        topic: topic.clone(),
+                        log_time_ns: header.log_time,
+                        data: data.into_owned(),
+                    }));
                 }
                 Ok(_) => {}
                 Err(source) => return Some(Err(corrupt(&self.path, source))),

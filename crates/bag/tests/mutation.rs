@@ -51,7 +51,10 @@ fn mutate(dir: &Path, name: &str, original: &[u8]) -> u64 {
         std::fs::write(&path, original).unwrap();
         read_all(&path)
     };
-    assert!(intact_read > 0 && intact_failed == 0, "{name}: the intact bag reads ({intact_read} read, {intact_failed} failed)");
+    assert!(
+        intact_read > 0 && intact_failed == 0,
+        "{name}: the intact bag reads ({intact_read} read, {intact_failed} failed)"
+    );
     let len = original.len() as u64;
     let mut random = Xorshift(0x9E37_79B9_7F4A_7C15 ^ len);
     let mut mutations: Vec<(String, Box<dyn Fn(&mut Vec<u8>)>)> = Vec::new();
@@ -73,7 +76,9 @@ fn mutate(dir: &Path, name: &str, original: &[u8]) -> u64 {
         mutation(&mut bytes);
         std::fs::write(&path, &bytes).unwrap();
         drop(bytes);
-        if std::env::var_os("MUTATION_TRACE").is_some() { eprintln!("{name}: {what}"); }
+        if std::env::var_os("MUTATION_TRACE").is_some() {
+            eprintln!("{name}: {what}");
+        }
         let baseline = ALLOCATOR.allocated();
         ALLOCATOR.set_limit(baseline + allowed).unwrap();
         let (done, finished) = mpsc::channel();
@@ -120,9 +125,13 @@ fn damaged_bags_give_errors_never_panics_hangs_or_unbounded_allocations() {
     let expected_path = dir.path().join("expected.json");
     std::fs::write(&expected_path, expected.to_string()).unwrap();
     let script = revisit_testkit::repo().join("crates/bag/tests/interop.py");
-    let status = Command::new(revisit_testkit::python()).arg(script).arg("write").arg(dir.path()).arg(&expected_path).status();
+    let status =
+        Command::new(revisit_testkit::python()).arg(script).arg("write").arg(dir.path()).arg(&expected_path).status();
     assert!(status.unwrap().success());
-    let db3 = std::fs::read_dir(dir.path().join("rosbags_db3")).unwrap().map(|e| e.unwrap().path()).find(|p| p.extension().is_some_and(|e| e == "db3"));
+    let db3 = std::fs::read_dir(dir.path().join("rosbags_db3"))
+        .unwrap()
+        .map(|e| e.unwrap().path())
+        .find(|p| p.extension().is_some_and(|e| e == "db3"));
 
     let real = std::fs::read(revisit_testkit::shared("data/t265_locoffice/locoffice_ros2_mcap.mcap")).unwrap();
     let work = tempfile::tempdir().unwrap();

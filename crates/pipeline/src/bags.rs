@@ -98,7 +98,11 @@ fn frame_of(message: &RawMessage) -> Result<Frame, String> {
             .filter(|f| matches!(f, ImageFormat::Png | ImageFormat::Jpeg))
             .ok_or_else(|| format!("compressed image format {:?} is not jpeg or png", image.format))?;
         let stamp = image.header.stamp;
-        return Ok(Frame { log_time_ns: message.log_time_ns, stamp, image: FrameImage::File { bytes: image.data, format } });
+        return Ok(Frame {
+            log_time_ns: message.log_time_ns,
+            stamp,
+            image: FrameImage::File { bytes: image.data, format },
+        });
     }
     Err(format!("type {type_name} is not sensor_msgs/msg/Image or sensor_msgs/msg/CompressedImage"))
 }
@@ -114,7 +118,13 @@ pub struct Exported {
 /// Writes the frames of `topic` to `out` as `NNNNNN.png` (raw images, lossless) or the
 /// compressed image's own file (`.jpg`, `.png`, never re-encoded), with `timestamps.csv`
 /// (`file,stamp_ns,log_time_ns`). A frame already written is not written again.
-pub fn export(bag: &Bag, topic: &str, out: &Path, progress: &dyn Progress, cancel: &Cancel) -> Result<Exported, PipelineError> {
+pub fn export(
+    bag: &Bag,
+    topic: &str,
+    out: &Path,
+    progress: &dyn Progress,
+    cancel: &Cancel,
+) -> Result<Exported, PipelineError> {
     let io = |path: &Path| {
         let path = path.to_owned();
         move |source| PipelineError::Io { path, source }
@@ -176,7 +186,11 @@ fn no_frames(bag: &Bag, topic: &str) -> PipelineError {
                 .filter(|t| t.topic.type_name.ends_with("Image"))
                 .map(|t| format!("{} ({})", t.topic.name, t.topic.type_name))
                 .collect();
-            if images.is_empty() { "none".to_owned() } else { images.join(", ") }
+            if images.is_empty() {
+                "none".to_owned()
+            } else {
+                images.join(", ")
+            }
         })
         .unwrap_or_else(|e| e.to_string());
     PipelineError::Bag(format!("{}: topic {topic} has no images; image topics: {topics}", bag.path().display()))
@@ -207,7 +221,11 @@ const DAY_NS: u64 = 86_400_000_000_000;
 /// digit): `640x480` becomes `camera_640x480`.
 pub fn camera_topic(camera: &str) -> String {
     let token: String = camera.chars().map(|c| if c.is_ascii_alphanumeric() { c } else { '_' }).collect();
-    if token.starts_with(|c: char| c.is_ascii_alphabetic()) { format!("/{token}") } else { format!("/camera_{token}") }
+    if token.starts_with(|c: char| c.is_ascii_alphabetic()) {
+        format!("/{token}")
+    } else {
+        format!("/camera_{token}")
+    }
 }
 
 /// Writes image folders as one bag: per visit, a [`SessionControl`] START on [`SESSION_TOPIC`],
@@ -222,7 +240,10 @@ pub fn pack(
     cancel: &Cancel,
 ) -> Result<WrittenBag, PipelineError> {
     if !(options.rate_hz.is_finite() && options.rate_hz > 0.0) {
-        return Err(PipelineError::Bag(format!("--rate {} must be a positive number of frames per second", options.rate_hz)));
+        return Err(PipelineError::Bag(format!(
+            "--rate {} must be a positive number of frames per second",
+            options.rate_hz
+        )));
     }
     let frame_ns = (1e9 / options.rate_hz).round() as u64;
     let mut writer = BagWriter::create(out).map_err(bag_error)?;
@@ -253,7 +274,11 @@ pub fn pack(
             let topic = camera_topic(&camera.name);
             if !camera_topics.contains_key(&topic) {
                 let image = if options.compressed {
-                    writer.add_raw_topic(&format!("{topic}/image_raw/compressed"), CompressedImage::DEFINITION, QosProfile::SENSOR_DATA)
+                    writer.add_raw_topic(
+                        &format!("{topic}/image_raw/compressed"),
+                        CompressedImage::DEFINITION,
+                        QosProfile::SENSOR_DATA,
+                    )
                 } else {
                     writer.add_raw_topic(&format!("{topic}/image_raw"), Image::DEFINITION, QosProfile::SENSOR_DATA)
                 };
@@ -277,7 +302,9 @@ pub fn pack(
             writer.write(info_topic, time_ns, &info).map_err(bag_error)?;
             progress.advance();
         }
-        writer.write(control, last_ns + frame_ns, &marker(SessionControl::END, last_ns + frame_ns)).map_err(bag_error)?;
+        writer
+            .write(control, last_ns + frame_ns, &marker(SessionControl::END, last_ns + frame_ns))
+            .map_err(bag_error)?;
     }
     progress.finish();
     writer.finish().map_err(bag_error)

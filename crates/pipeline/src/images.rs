@@ -4,7 +4,7 @@
 
 use std::path::Path;
 
-use image::{DynamicImage, GrayImage, ImageFormat, Luma, Rgb, RgbImage};
+use image::{DynamicImage, GrayImage, ImageFormat, Rgb, RgbImage};
 use revisit_msgs::sensor_msgs::{CompressedImage, Image};
 
 use crate::PipelineError;
@@ -163,27 +163,45 @@ pub fn from_raw(message: &Image, origin: &Path) -> Result<DynamicImage, Pipeline
             step as u64 * u64::from(height)
         )));
     }
-    let sample = |x: u32, y: u32, c: usize| -> u16 {
-        let at = y as usize * step + (x as usize * channels + c) * bytes_per_sample;
-        match bytes_per_sample {
-            1 => u16::from(message.data[at]),
-            _ if message.is_bigendian != 0 => u16::from_be_bytes([message.data[at], message.data[at + 1]]),
-            _ => u16::from_le_bytes([message.data[at], message.data[at + 1]]),
+    // Each row without its padding; the pixel layouts below copy row by row.
+    let rows = || message.data.chunks_exact(step).map(|row| &row[..row_bytes]);
+    let sixteen = |bytes: &[u8]| {
+        let pair = [bytes[0], bytes[1]];
+        if message.is_bigendian != 0 {
+            u16::from_be_bytes(pair)
+        } else {
+            u16::from_le_bytes(pair)
         }
     };
+    let too_big = || bad(format!("{width}x{height} does not fit in memory"));
+    let packed = || {
+        let mut bytes = Vec::with_capacity(row_bytes * height as usize);
+        rows().for_each(|row| bytes.extend_from_slice(row));
+        bytes
+    };
     let image = match encoding {
-        "mono8" => DynamicImage::ImageLuma8(GrayImage::from_fn(width, height, |x, y| Luma([sample(x, y, 0) as u8]))),
-        "mono16" => DynamicImage::ImageLuma16(image::ImageBuffer::from_fn(width, height, |x, y| Luma([sample(x, y, 0)]))),
-        "rgb8" | "rgba8" => {
-            DynamicImage::ImageRgb8(RgbImage::from_fn(width, height, |x, y| Rgb([0, 1, 2].map(|c| sample(x, y, c) as u8))))
+        "mono8" => DynamicImage::ImageLuma8(GrayImage::from_raw(width, height, packed()).ok_or_else(too_big)?),
+        "rgb8" => DynamicImage::ImageRgb8(RgbImage::from_raw(width, height, packed()).ok_or_else(too_big)?),
+        "mono16" => {
+            let pixels = rows().flat_map(|row| row.chunks_exact(2).map(sixteen)).collect();
+            DynamicImage::ImageLuma16(image::ImageBuffer::from_raw(width, height, pixels).ok_or_else(too_big)?)
         }
-        "bgr8" | "bgra8" => {
-            DynamicImage::ImageRgb8(RgbImage::from_fn(width, height, |x, y| Rgb([2, 1, 0].map(|c| sample(x, y, c) as u8))))
+        "rgba8" | "bgr8" | "bgra8" => {
+            let order = if encoding == "rgba8" { [0, 1, 2] } else { [2, 1, 0] };
+            let pixels =
+                rows().flat_map(|row| row.chunks_exact(channels).flat_map(move |p| order.map(|c| p[c]))).collect();
+            DynamicImage::ImageRgb8(RgbImage::from_raw(width, height, pixels).ok_or_else(too_big)?)
         }
         bayer => {
             let pattern = bayer_pattern(bayer).ok_or_else(|| bad(format!("unknown Bayer pattern in {bayer:?}")))?;
-            let shift = if bytes_per_sample == 2 { 8 } else { 0 };
-            DynamicImage::ImageRgb8(debayer(width, height, pattern, |x, y| sample(x, y, 0) >> shift))
+            let sample = |x: u32, y: u32| {
+                let at = y as usize * step + x as usize * bytes_per_sample;
+                match bytes_per_sample {
+                    1 => message.data[at],
+                    _ => (sixteen(&message.data[at..]) >> 8) as u8,
+                }
+            };
+            DynamicImage::ImageRgb8(debayer(width, height, pattern, sample))
         }
     };
     Ok(image)
@@ -209,7 +227,7 @@ fn bayer_pattern(encoding: &str) -> Option<[usize; 4]> {
 
 /// Bilinear-style demosaicing: each colour is the mean of that colour's samples in the 3x3
 /// neighbourhood (the pixel's own sample for its own colour).
-fn debayer(width: u32, height: u32, pattern: [usize; 4], sample: impl Fn(u32, u32) -> u16) -> RgbImage {
+fn debayer(width: u32, height: u32, pattern: [usize; 4], sample: impl Fn(u32, u32) -> u8) -> RgbImage {
     let colour_at = |x: u32, y: u32| pattern[(y % 2 * 2 + x % 2) as usize];
     RgbImage::from_fn(width, height, |x, y| {
         let own = colour_at(x, y);
@@ -264,7 +282,13 @@ mod message_tests {
     fn bayer_of_one_colour_debayers_to_that_colour() -> Result<(), PipelineError> {
         // An orange scene (200, 100, 50) seen through an RGGB mosaic.
         let (r, g, b) = (200, 100, 50);
-        let data = (0..4 * 4).map(|i| match (i % 4 % 2, i / 4 % 2) { (0, 0) => r, (1, 1) => b, _ => g }).collect();
+        let data = (0..4 * 4)
+            .map(|i| match (i % 4 % 2, i / 4 % 2) {
+                (0, 0) => r,
+                (1, 1) => b,
+                _ => g,
+            })
+            .collect();
         let image = from_raw(&raw(4, 4, "bayer_rggb8", 4, data), origin())?.to_rgb8();
         assert!(image.pixels().all(|p| p.0 == [r, g, b]), "{:?}", image.pixels().collect::<Vec<_>>());
         Ok(())

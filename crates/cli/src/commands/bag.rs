@@ -76,7 +76,8 @@ pub fn run(command: Command) -> Result<()> {
             ingest::check_specs(&sessions)?;
             let scanned = sessions.iter().map(ingest::scan_session).collect::<Result<Vec<_>, _>>()?;
             let cancel = crate::signals::cancel_on_signals()?;
-            let written = bags::pack(&scanned, &out, PackOptions { rate_hz: rate, compressed }, &Bars::default(), &cancel)?;
+            let written =
+                bags::pack(&scanned, &out, PackOptions { rate_hz: rate, compressed }, &Bars::default(), &cancel)?;
             println!("wrote {} messages to {}", written.messages, written.dir.display());
             Ok(())
         }

@@ -1,10 +1,14 @@
 //! `revisit bench ...`: figures side by side with the reference implementations.
 
+mod bag;
 mod matching;
 mod sift;
 
 #[derive(clap::Subcommand)]
 pub enum Bench {
+    /// Bag read throughput (MB/s, messages/s, images decoded/s) beside Python
+    /// mcap + mcap-ros2-support on the same mcap file.
+    Bag(bag::Args),
     /// Revisit's SIFT against OpenCV's on the same real images: time per image
     /// at equal feature count and verified inliers on overlapping pairs.
     Sift(sift::Args),
@@ -17,6 +21,7 @@ pub enum Bench {
 
 pub fn run(bench: Bench) -> anyhow::Result<()> {
     match bench {
+        Bench::Bag(args) => bag::run(args),
         Bench::Sift(args) => sift::run(args),
         Bench::Matching(args) => matching::run(args),
     }
