@@ -44,6 +44,11 @@ impl Xorshift {
     }
 }
 
+enum Mutation {
+    Truncate(usize),
+    Flip { at: usize, bit: u8 },
+}
+
 /// Runs every mutation of `original` (stored as `name` in `dir`) and returns how many there were.
 fn mutate(dir: &Path, name: &str, original: &[u8]) -> u64 {
     let path = dir.join(name);
@@ -57,23 +62,30 @@ fn mutate(dir: &Path, name: &str, original: &[u8]) -> u64 {
     );
     let len = original.len() as u64;
     let mut random = Xorshift(0x9E37_79B9_7F4A_7C15 ^ len);
-    let mut mutations: Vec<(String, Box<dyn Fn(&mut Vec<u8>)>)> = Vec::new();
+    let mut mutations = Vec::new();
     for i in 0..TRUNCATIONS {
-        let keep = (len * i / TRUNCATIONS) as usize;
-        mutations.push((format!("truncated to {keep} bytes"), Box::new(move |b: &mut Vec<u8>| b.truncate(keep))));
+        mutations.push(Mutation::Truncate((len * i / TRUNCATIONS) as usize));
     }
     for _ in 0..FLIPS {
         // Half the flips hit the first 4 KiB, where headers, schemas and lengths are.
-        let at = if random.next() % 2 == 0 { random.next() % len.min(4096) } else { random.next() % len } as usize;
-        let bit = 1u8 << (random.next() % 8);
-        mutations.push((format!("bit {bit:#04x} of byte {at} flipped"), Box::new(move |b: &mut Vec<u8>| b[at] ^= bit)));
+        let at = if random.next().is_multiple_of(2) { random.next() % len.min(4096) } else { random.next() % len };
+        mutations.push(Mutation::Flip { at: at as usize, bit: 1u8 << (random.next() % 8) });
     }
     // Live heap allowed while reading: the file twice over plus the 1 MiB read buffer.
     let allowed = 2 * original.len() + (2 << 20);
     let count = mutations.len() as u64;
-    for (what, mutation) in mutations {
+    for mutation in mutations {
         let mut bytes = original.to_vec();
-        mutation(&mut bytes);
+        let what = match mutation {
+            Mutation::Truncate(keep) => {
+                bytes.truncate(keep);
+                format!("truncated to {keep} bytes")
+            }
+            Mutation::Flip { at, bit } => {
+                bytes[at] ^= bit;
+                format!("bit {bit:#04x} of byte {at} flipped")
+            }
+        };
         std::fs::write(&path, &bytes).unwrap();
         drop(bytes);
         if std::env::var_os("MUTATION_TRACE").is_some() {
