@@ -243,7 +243,7 @@ fn debayer(width: u32, height: u32, pattern: [usize; 4], sample: impl Fn(u32, u3
                 counts[colour] += 1;
             }
         }
-        Rgb([0, 1, 2].map(|c| if counts[c] == 0 { 0 } else { (sums[c] / counts[c]).min(255) as u8 }))
+        Rgb([0, 1, 2].map(|c| sums[c].checked_div(counts[c]).unwrap_or(0).min(255) as u8))
     })
 }
 
