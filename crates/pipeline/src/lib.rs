@@ -23,6 +23,7 @@ pub mod cross;
 pub mod export;
 pub mod images;
 pub mod ingest;
+pub mod keyframes;
 pub mod learned;
 pub mod locate;
 pub mod mapping;
