@@ -10,13 +10,21 @@ use image::{DynamicImage, ImageFormat};
 use revisit_bag::{Bag, BagError, BagWriter, QosProfile, RawMessage, WrittenBag};
 use revisit_msgs::{
     builtin_interfaces::Time,
+    nav_msgs::Odometry,
     revisit_msgs::SessionControl,
     sensor_msgs::{CameraInfo, CompressedImage, Image},
     std_msgs::Header,
     Message,
 };
 
-use crate::{images, ingest::SessionImages, Cancel, PipelineError, Progress};
+use serde::{Deserialize, Serialize};
+
+use crate::{
+    images,
+    ingest::{SessionImages, SessionSpec},
+    keyframes::{KeyframeOptions, KeyframeSelector},
+    Cancel, PipelineError, Progress,
+};
 
 /// The topic of visit markers ([`SessionControl`]) in bags Revisit writes.
 pub const SESSION_TOPIC: &str = "/revisit/session";
@@ -324,5 +332,189 @@ pub fn raw_image(header: Header, image: &DynamicImage) -> Image {
         is_bigendian: 0,
         step: image.width() * channels,
         data,
+    }
+}
+
+/// How [`ingest`] turns a bag into visits.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct IngestOptions {
+    /// The image topic; `None`: the bag's only image topic.
+    pub topic: Option<String>,
+    /// Split the bag into visits where frames are more than this many seconds apart.
+    pub split_gap_s: Option<f64>,
+    pub keyframes: KeyframeOptions,
+}
+
+impl Default for IngestOptions {
+    fn default() -> Self {
+        Self { topic: None, split_gap_s: None, keyframes: KeyframeOptions::default() }
+    }
+}
+
+/// What [`ingest`] found and kept; stored beside the frames, so that running again with the same
+/// bag and options reads nothing.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Ingested {
+    pub bag: PathBuf,
+    pub options: IngestOptions,
+    pub topic: String,
+    /// The visits, in time order, each with its folder of keyframes.
+    pub visits: Vec<IngestedVisit>,
+    /// Messages of the topic that did not decode, each with its error.
+    pub skipped: Vec<String>,
+}
+
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct IngestedVisit {
+    pub name: String,
+    pub dir: PathBuf,
+    /// Frames of the topic in this visit, and those kept as keyframes.
+    pub frames: usize,
+    pub keyframes: usize,
+}
+
+impl Ingested {
+    pub fn sessions(&self) -> Vec<SessionSpec> {
+        self.visits.iter().map(|v| SessionSpec { name: v.name.clone(), dir: v.dir.clone() }).collect()
+    }
+}
+
+/// The file of the `index`-th frame (counting every frame, kept or not) of a visit: the name
+/// `revisit synth` gives its images, so that a synthetic survey's truth names a bag's keyframes.
+pub fn frame_file(visit: &str, index: usize, format: ImageFormat) -> String {
+    let extension = if format == ImageFormat::Jpeg { "jpg" } else { "png" };
+    format!("{visit}_{index:04}.{extension}")
+}
+
+/// Reads a visit's bag (`spec.dir` is the bag) into folders of keyframes under `out`
+/// (`out/VISIT/`), one visit, or one per gap of `split_gap_s` (named `NAME-1`, `NAME-2`, ...).
+/// Compressed frames are kept as their own files, raw frames written as PNG. The position for
+/// keyframe selection by distance is the last `nav_msgs/Odometry` before each frame.
+pub fn ingest(
+    spec: &SessionSpec,
+    options: &IngestOptions,
+    out: &Path,
+    progress: &dyn Progress,
+    cancel: &Cancel,
+) -> Result<Ingested, PipelineError> {
+    options.keyframes.check().map_err(PipelineError::Bag)?;
+    if options.split_gap_s.is_some_and(|gap| !(gap.is_finite() && gap > 0.0)) {
+        return Err(PipelineError::Bag("--split-gap must be a positive number of seconds".into()));
+    }
+    let bag = Bag::open(&spec.dir).map_err(bag_error)?;
+    let bag_path = fs::canonicalize(&spec.dir).map_err(|source| PipelineError::Io { path: spec.dir.clone(), source })?;
+    let marker = out.join(format!("{}.ingested.json", spec.name));
+    if let Ok(text) = fs::read_to_string(&marker) {
+        if let Ok(done) = serde_json::from_str::<Ingested>(&text) {
+            if done.bag == bag_path && done.options == *options {
+                return Ok(done);
+            }
+        }
+    }
+    let topic = match &options.topic {
+        Some(topic) => topic.clone(),
+        None => only_image_topic(&bag)?,
+    };
+
+    let mut visits: Vec<IngestedVisit> = Vec::new();
+    let mut selector = KeyframeSelector::new(options.keyframes);
+    let mut position_m = None;
+    let mut last_frame_ns: Option<u64> = None;
+    let mut skipped = Vec::new();
+    progress.start(&format!("keyframes {}", spec.name), 0);
+    for message in bag.messages() {
+        cancel.check()?;
+        let message = match message {
+            Ok(message) => message,
+            Err(error @ BagError::BadMessage { .. }) => {
+                skipped.push(error.to_string());
+                continue;
+            }
+            Err(error) => return Err(bag_error(error)),
+        };
+        if message.topic.type_name == Odometry::DEFINITION.name {
+            if let Ok(odometry) = revisit_msgs::decode::<Odometry>(&message.data) {
+                let p = odometry.pose.pose.position;
+                position_m = Some([p.x, p.y, p.z]);
+            }
+            continue;
+        }
+        if message.topic.name != topic {
+            continue;
+        }
+        let origin = origin(&bag, &message);
+        let decoded = frame_of(&message)
+            .map_err(|why| PipelineError::Bag(format!("{}: {why}", origin.display())))
+            .and_then(|frame| frame.decode(&origin).map(|image| (frame, image)));
+        let (frame, image) = match decoded {
+            Ok(decoded) => decoded,
+            Err(error) => {
+                skipped.push(error.to_string());
+                continue;
+            }
+        };
+        let time_ns = match frame.stamp.as_nanos() {
+            0 => message.log_time_ns,
+            stamp => u64::try_from(stamp).unwrap_or(message.log_time_ns),
+        };
+        let gap = options.split_gap_s.zip(last_frame_ns).is_some_and(|(gap_s, last)| time_ns.saturating_sub(last) as f64 * 1e-9 > gap_s);
+        last_frame_ns = Some(time_ns);
+        if visits.is_empty() || gap {
+            let name = match options.split_gap_s {
+                Some(_) => format!("{}-{}", spec.name, visits.len() + 1),
+                None => spec.name.clone(),
+            };
+            let dir = out.join(&name);
+            fs::create_dir_all(&dir).map_err(|source| PipelineError::Io { path: dir.clone(), source })?;
+            visits.push(IngestedVisit { name, dir, frames: 0, keyframes: 0 });
+            selector = KeyframeSelector::new(options.keyframes);
+        }
+        let Some(visit) = visits.last_mut() else { continue };
+        let index = visit.frames;
+        visit.frames += 1;
+        if selector.offer(time_ns, position_m, &image).is_none() {
+            continue;
+        }
+        let (format, bytes) = match frame.image {
+            FrameImage::File { bytes, format } => (format, bytes),
+            FrameImage::Raw(_) => {
+                let mut png = Vec::new();
+                image
+                    .write_to(&mut std::io::Cursor::new(&mut png), ImageFormat::Png)
+                    .map_err(|e| PipelineError::BadImage { path: origin.clone(), reason: e.to_string() })?;
+                (ImageFormat::Png, png)
+            }
+        };
+        write_atomically(&visit.dir.join(frame_file(&visit.name, index, format)), &bytes)?;
+        visit.keyframes += 1;
+        progress.advance();
+    }
+    progress.finish();
+    if visits.is_empty() {
+        return Err(no_frames(&bag, &topic));
+    }
+    let ingested = Ingested { bag: bag_path, options: options.clone(), topic, visits, skipped };
+    let text = serde_json::to_string_pretty(&ingested).map_err(|e| PipelineError::Bag(e.to_string()))?;
+    write_atomically(&marker, text.as_bytes())?;
+    Ok(ingested)
+}
+
+fn only_image_topic(bag: &Bag) -> Result<String, PipelineError> {
+    let info = bag.info().map_err(bag_error)?;
+    let images: Vec<&str> = info
+        .topics
+        .iter()
+        .filter(|t| [Image::DEFINITION.name, CompressedImage::DEFINITION.name].contains(&t.topic.type_name.as_str()))
+        .map(|t| t.topic.name.as_str())
+        .collect();
+    match images[..] {
+        [topic] => Ok(topic.to_owned()),
+        [] => Err(PipelineError::Bag(format!("{}: no image topic", bag.path().display()))),
+        _ => Err(PipelineError::Bag(format!(
+            "{}: several image topics ({}); choose one with --topic",
+            bag.path().display(),
+            images.join(", ")
+        ))),
     }
 }

@@ -331,7 +331,52 @@ pub fn plan(options: &SynthOptions) -> Result<Survey, SynthError> {
     Ok(Survey { options: options.clone(), site, sessions, objects, scene_slot, sediment, seabeds, scenes, index })
 }
 
+/// Dead-reckoned navigation of one image: what a vehicle's odometry says, truth plus drift.
+#[derive(Clone, Debug, PartialEq)]
+pub struct NavigationSample {
+    pub time_s: f64,
+    /// The camera's pose in the odometry frame (the world frame at the visit's first image,
+    /// drifting away from it).
+    pub odom_from_cam: Rigid3,
+}
+
+/// Odometry drift: scale error (fraction), heading error (degrees) and a random walk (metres per
+/// square root of image), each drawn per visit.
+const DRIFT_SCALE_SIGMA: f64 = 0.01;
+const DRIFT_HEADING_SIGMA_DEG: f64 = 1.0;
+const DRIFT_WALK_SIGMA_M: f64 = 0.02;
+
 impl Survey {
+    /// The odometry of session `s`: each image's true pose relative to the first, with a scale
+    /// error, a heading error and a random walk (seeded by the survey's seed), as a DVL/INS would
+    /// report it.
+    pub fn navigation(&self, s: usize) -> Vec<NavigationSample> {
+        let Some(session) = self.sessions.get(s) else { return Vec::new() };
+        let mut rng = SplitMix64::stream(self.options.seed, 0x0D0_0000 + s as u64);
+        let scale = 1.0 + DRIFT_SCALE_SIGMA * rng.normal();
+        let heading = UnitQuaternion::from_axis_angle(
+            &Vector3::z_axis(),
+            (DRIFT_HEADING_SIGMA_DEG * rng.normal()).to_radians(),
+        );
+        let Some(first) = session.images.first() else { return Vec::new() };
+        let origin = first.cam_from_world.inverse().translation;
+        let mut walk = Vector3::zeros();
+        session
+            .images
+            .iter()
+            .map(|image| {
+                let world_from_cam = image.cam_from_world.inverse();
+                let travelled = world_from_cam.translation - origin;
+                let position = origin + heading * (travelled * scale) + walk;
+                walk += Vector3::new(rng.normal(), rng.normal(), 0.2 * rng.normal()) * DRIFT_WALK_SIGMA_M;
+                NavigationSample {
+                    time_s: image.time_s,
+                    odom_from_cam: Rigid3 { rotation: heading * world_from_cam.rotation, translation: position },
+                }
+            })
+            .collect()
+    }
+
     pub fn options(&self) -> &SynthOptions {
         &self.options
     }

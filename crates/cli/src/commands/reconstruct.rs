@@ -4,7 +4,9 @@ use std::path::{Path, PathBuf};
 
 use anyhow::{Context, Result};
 use revisit_core::PairKind;
+use revisit_pipeline::bags::{self, IngestOptions};
 use revisit_pipeline::ingest::{self, SessionSpec};
+use revisit_pipeline::keyframes::{self, KeyframeOptions};
 use revisit_pipeline::{Report, Workspace};
 
 use crate::commands::models::ToolArgs;
@@ -26,8 +28,15 @@ pub struct Args {
     /// whose sorted file names give the time order: directly (one camera per
     /// image size) or in one sub-folder per camera (e.g. left/, right/).
     /// Repeat for every visit; a new visit comes after those already stored.
-    #[arg(long = "session", value_name = "NAME=DIR", required = true)]
+    #[arg(long = "session", value_name = "NAME=DIR", required_unless_present = "bags")]
     sessions: Vec<SessionSpec>,
+    /// A visit recorded as a ROS 2 bag, as NAME=BAG (a bag folder with metadata.yaml, or one .mcap
+    /// or .db3 file). Its keyframes (see --keyframe-overlap) are written to WORK/frames/NAME/ and
+    /// reconstructed like a folder. Repeat for every visit; bags come after --session folders.
+    #[arg(long = "bag", value_name = "NAME=BAG")]
+    bags: Vec<SessionSpec>,
+    #[command(flatten)]
+    bag_options: BagArgs,
     /// Work folder for the store and every output (created if missing).
     #[arg(long, value_name = "WORK")]
     out: PathBuf,
@@ -37,11 +46,64 @@ pub struct Args {
     tools: ToolArgs,
 }
 
+/// How bags become visits.
+#[derive(clap::Args)]
+struct BagArgs {
+    /// The image topic of every --bag (sensor_msgs/Image or CompressedImage); default: the bag's
+    /// only image topic.
+    #[arg(long)]
+    topic: Option<String>,
+    /// Split each --bag into visits where frames are more than SECONDS apart (named NAME-1, NAME-2, ...).
+    #[arg(long, value_name = "SECONDS")]
+    split_gap: Option<f64>,
+    /// Keep a frame as a keyframe when its tracked overlap with the last keyframe (the fraction of
+    /// the image still in view) falls below this.
+    #[arg(long, value_name = "FRACTION", default_value_t = keyframes::DEFAULT_MIN_OVERLAP)]
+    keyframe_overlap: f64,
+    /// Also keep a frame SECONDS after the last keyframe.
+    #[arg(long, value_name = "SECONDS")]
+    keyframe_every: Option<f64>,
+    /// Also keep a frame METRES (by nav_msgs/Odometry in the bag) from the last keyframe.
+    #[arg(long, value_name = "METRES")]
+    keyframe_distance: Option<f64>,
+    /// Keep every frame (no keyframe selection).
+    #[arg(long, conflicts_with_all = ["keyframe_every", "keyframe_distance"])]
+    all_frames: bool,
+}
+
+impl BagArgs {
+    fn options(&self) -> IngestOptions {
+        let keyframes = if self.all_frames {
+            KeyframeOptions::ALL
+        } else {
+            KeyframeOptions {
+                min_overlap: Some(self.keyframe_overlap),
+                every_s: self.keyframe_every,
+                distance_m: self.keyframe_distance,
+            }
+        };
+        IngestOptions { topic: self.topic.clone(), split_gap_s: self.split_gap, keyframes }
+    }
+}
+
 /// Runs a reconstruction with progress bars; `cancel` stops it between items.
 fn reconstruct(args: &Args, cancel: &revisit_pipeline::Cancel) -> Result<Report> {
-    ingest::check_specs(&args.sessions).context("--session")?;
-    let sessions = args
-        .sessions
+    let mut specs = args.sessions.clone();
+    let frames = args.out.join("frames");
+    for bag in &args.bags {
+        ingest::check_specs(std::slice::from_ref(bag)).context("--bag")?;
+        let ingested = bags::ingest(bag, &args.bag_options.options(), &frames, &Bars::default(), cancel)
+            .with_context(|| format!("--bag {}", bag.name))?;
+        for visit in &ingested.visits {
+            tracing::info!("{}: {} of {} frames of {} kept", visit.name, visit.keyframes, visit.frames, ingested.topic);
+        }
+        if !ingested.skipped.is_empty() {
+            tracing::warn!("--bag {}: {} messages skipped, first: {}", bag.name, ingested.skipped.len(), ingested.skipped[0]);
+        }
+        specs.extend(ingested.sessions());
+    }
+    ingest::check_specs(&specs).context("--session")?;
+    let sessions = specs
         .iter()
         .map(|spec| ingest::scan_session(spec).with_context(|| format!("--session {}", spec.name)))
         .collect::<Result<Vec<_>>>()?;

@@ -44,6 +44,15 @@ pub struct Args {
     /// Evaluation image pairs per session pair.
     #[arg(long, default_value_t = 30)]
     eval_pairs: usize,
+    /// Also write each visit as a ROS 2 bag, bags/NAME/ (rosbag2 mcap): the images as
+    /// sensor_msgs/CompressedImage PNG on /camera/image_raw/compressed, the true calibration on
+    /// /camera/camera_info, dead-reckoned navigation (truth plus scale, heading and random-walk
+    /// drift) as nav_msgs/Odometry on /odom, and revisit_msgs/SessionControl on /revisit/session.
+    #[arg(long)]
+    bag: bool,
+    /// Frames per second of the bags' timeline.
+    #[arg(long, default_value_t = 1.0, requires = "bag")]
+    bag_rate: f64,
 }
 
 fn parse_change(text: &str) -> Result<ChangeGrade, String> {
@@ -115,6 +124,13 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     let render_secs = render_start.elapsed().as_secs_f64();
 
     write_truth(&survey, &truth_dir, args.eval_pairs)?;
+    if args.bag {
+        anyhow::ensure!(args.bag_rate.is_finite() && args.bag_rate > 0.0, "--bag-rate must be a positive number of frames per second");
+        for s in 0..survey.sessions().len() {
+            let written = write_bag(&survey, s, &sessions_dir, &args.out.join("bags"), args.bag_rate)?;
+            info!("wrote {} messages to {}", written.messages, written.dir.display());
+        }
+    }
     info!(
         "rendered {count} images in {render_secs:.1} s = {:.1} img/s ({}x{}, scene build {build_secs:.1} s); wrote {}",
         count as f64 / render_secs.max(1e-9),
@@ -123,6 +139,82 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         args.out.display()
     );
     Ok(())
+}
+
+/// One visit as a rosbag2 bag: images, camera info, odometry and visit markers.
+fn write_bag(
+    survey: &Survey,
+    s: usize,
+    sessions_dir: &Path,
+    bags_dir: &Path,
+    rate_hz: f64,
+) -> anyhow::Result<revisit_bag::WrittenBag> {
+    use revisit_bag::{BagWriter, QosProfile};
+    use revisit_msgs::{
+        builtin_interfaces::Time,
+        geometry_msgs::{Point, Pose, PoseWithCovariance, Quaternion},
+        nav_msgs::Odometry,
+        revisit_msgs::SessionControl,
+        sensor_msgs::{CameraInfo, CompressedImage},
+        std_msgs::Header,
+    };
+    let session = &survey.sessions()[s];
+    let intrinsics = survey.intrinsics().into_iter().nth(s).context("the session's intrinsics")?;
+    std::fs::create_dir_all(bags_dir).with_context(|| format!("creating {}", bags_dir.display()))?;
+    let dir = bags_dir.join(&session.name);
+    if dir.exists() {
+        std::fs::remove_dir_all(&dir).with_context(|| format!("replacing {}", dir.display()))?;
+    }
+    let mut bag = BagWriter::create(&dir)?;
+    let images = bag.add_topic::<CompressedImage>("/camera/image_raw/compressed", QosProfile::SENSOR_DATA)?;
+    let infos = bag.add_topic::<CameraInfo>("/camera/camera_info", QosProfile::SENSOR_DATA)?;
+    let odometry = bag.add_topic::<Odometry>("/odom", QosProfile::SENSOR_DATA)?;
+    let control = bag.add_topic::<SessionControl>(revisit_pipeline::bags::SESSION_TOPIC, QosProfile::LATCHED)?;
+
+    let start_ns = revisit_pipeline::bags::PACK_START_NS + s as u64 * 86_400_000_000_000;
+    let time_ns = |i: usize| start_ns + (i as f64 * 1e9 / rate_hz).round() as u64;
+    let header = |time_ns: u64, frame_id: &str| Header { stamp: Time::from_nanos(time_ns as i64), frame_id: frame_id.into() };
+    let marker = |command, time_ns| SessionControl {
+        header: header(time_ns, ""),
+        command,
+        session: session.name.clone(),
+        source: "revisit synth".into(),
+    };
+    bag.write(control, start_ns, &marker(SessionControl::START, start_ns))?;
+    let (fx, fy, cx, cy) = (intrinsics.fx, intrinsics.fy, intrinsics.cx, intrinsics.cy);
+    // COLMAP's pixel centres are at +0.5; ROS's at 0.
+    let info = |time_ns| CameraInfo {
+        header: header(time_ns, "camera"),
+        width: intrinsics.width,
+        height: intrinsics.height,
+        distortion_model: "plumb_bob".into(),
+        d: vec![0.0; 5],
+        k: [fx, 0.0, cx - 0.5, 0.0, fy, cy - 0.5, 0.0, 0.0, 1.0],
+        r: [1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0],
+        p: [fx, 0.0, cx - 0.5, 0.0, 0.0, fy, cy - 0.5, 0.0, 0.0, 0.0, 1.0, 0.0],
+        ..CameraInfo::default()
+    };
+    let navigation = survey.navigation(s);
+    for (i, (image, nav)) in session.images.iter().zip(&navigation).enumerate() {
+        let t = time_ns(i);
+        let path = sessions_dir.join(&session.name).join(&image.file);
+        let data = std::fs::read(&path).with_context(|| format!("reading {}", path.display()))?;
+        bag.write(images, t, &CompressedImage { header: header(t, "camera"), format: "png".into(), data })?;
+        bag.write(infos, t, &info(t))?;
+        let ([w, x, y, z], p) = (nav.odom_from_cam.wxyz(), nav.odom_from_cam.translation);
+        let mut covariance = [0.0; 36];
+        for (k, sigma) in [0.05, 0.05, 0.02, 0.01, 0.01, 0.02].into_iter().enumerate() {
+            covariance[k * 7] = sigma * sigma;
+        }
+        let pose = PoseWithCovariance {
+            pose: Pose { position: Point { x: p.x, y: p.y, z: p.z }, orientation: Quaternion { x, y, z, w } },
+            covariance,
+        };
+        bag.write(odometry, t, &Odometry { header: header(t, "odom"), child_frame_id: "camera".into(), pose, ..Odometry::default() })?;
+    }
+    let end = time_ns(session.images.len());
+    bag.write(control, end, &marker(SessionControl::END, end))?;
+    Ok(bag.finish()?)
 }
 
 fn write_file(path: &Path, contents: &str) -> anyhow::Result<()> {
