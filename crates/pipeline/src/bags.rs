@@ -418,7 +418,7 @@ pub fn ingest(
     };
 
     let mut visits: Vec<IngestedVisit> = Vec::new();
-    let mut selector = KeyframeSelector::new(options.keyframes);
+    let mut selector: KeyframeSelector<(usize, FrameImage, PathBuf)> = KeyframeSelector::new(options.keyframes);
     let mut position_m = None;
     let mut last_frame_ns: Option<u64> = None;
     let mut skipped = Vec::new();
@@ -461,6 +461,10 @@ pub fn ingest(
         let gap = options.split_gap_s.zip(last_frame_ns).is_some_and(|(gap_s, last)| time_ns.saturating_sub(last) as f64 * 1e-9 > gap_s);
         last_frame_ns = Some(time_ns);
         if visits.is_empty() || gap {
+            if let (Some(visit), Some((kept, _))) = (visits.last_mut(), selector.finish()) {
+                write_keyframe(visit, kept)?;
+                progress.advance();
+            }
             let name = match options.split_gap_s {
                 Some(_) => format!("{}-{}", spec.name, visits.len() + 1),
                 None => spec.name.clone(),
@@ -473,22 +477,14 @@ pub fn ingest(
         let Some(visit) = visits.last_mut() else { continue };
         let index = visit.frames;
         visit.frames += 1;
-        if selector.offer(time_ns, position_m, &image).is_none() {
-            continue;
+        let kept = selector.offer((index, frame.image, origin), time_ns, position_m, &image);
+        for (kept, _) in kept {
+            write_keyframe(visit, kept)?;
+            progress.advance();
         }
-        let (format, bytes) = match frame.image {
-            FrameImage::File { bytes, format } => (format, bytes),
-            FrameImage::Raw(_) => {
-                let mut png = Vec::new();
-                image
-                    .write_to(&mut std::io::Cursor::new(&mut png), ImageFormat::Png)
-                    .map_err(|e| PipelineError::BadImage { path: origin.clone(), reason: e.to_string() })?;
-                (ImageFormat::Png, png)
-            }
-        };
-        write_atomically(&visit.dir.join(frame_file(&visit.name, index, format)), &bytes)?;
-        visit.keyframes += 1;
-        progress.advance();
+    }
+    if let (Some(visit), Some((kept, _))) = (visits.last_mut(), selector.finish()) {
+        write_keyframe(visit, kept)?;
     }
     progress.finish();
     if visits.is_empty() {
@@ -498,6 +494,24 @@ pub fn ingest(
     let text = serde_json::to_string_pretty(&ingested).map_err(|e| PipelineError::Bag(e.to_string()))?;
     write_atomically(&marker, text.as_bytes())?;
     Ok(ingested)
+}
+
+/// Writes a kept frame, `(index in the visit, image, origin)`, into its visit's folder:
+/// compressed frames as their own file, raw ones as PNG.
+fn write_keyframe(visit: &mut IngestedVisit, (index, image, origin): (usize, FrameImage, PathBuf)) -> Result<(), PipelineError> {
+    let (format, bytes) = match image {
+        FrameImage::File { bytes, format } => (format, bytes),
+        FrameImage::Raw(message) => {
+            let mut png = Vec::new();
+            images::from_raw(&message, &origin)?
+                .write_to(&mut std::io::Cursor::new(&mut png), ImageFormat::Png)
+                .map_err(|e| PipelineError::BadImage { path: origin.clone(), reason: e.to_string() })?;
+            (ImageFormat::Png, png)
+        }
+    };
+    write_atomically(&visit.dir.join(frame_file(&visit.name, index, format)), &bytes)?;
+    visit.keyframes += 1;
+    Ok(())
 }
 
 fn only_image_topic(bag: &Bag) -> Result<String, PipelineError> {

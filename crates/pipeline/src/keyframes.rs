@@ -59,60 +59,97 @@ pub enum Reason {
     Every,
     Time,
     Distance,
+    /// The last frame that still overlapped the last keyframe enough, kept because the next
+    /// one does not.
     Overlap,
+    /// The last frame of the stream.
+    Last,
 }
 
-struct Last {
+struct Seen<T> {
+    frame: T,
     time_ns: u64,
     position_m: Option<[f64; 3]>,
     thumb: Option<Thumb>,
 }
 
-/// Chooses keyframes from a stream of frames.
-pub struct KeyframeSelector {
+/// Chooses keyframes from a stream of frames, each carrying a payload `T` (what the caller
+/// writes when a frame is kept). By overlap, the decision waits one frame: when a frame no
+/// longer overlaps the last keyframe enough, the frame before it (which still did) is kept, so
+/// that consecutive keyframes overlap by at least the threshold wherever the stream allows it.
+pub struct KeyframeSelector<T> {
     options: KeyframeOptions,
-    last: Option<Last>,
+    last: Option<Seen<()>>,
+    pending: Option<Seen<T>>,
 }
 
-impl KeyframeSelector {
+impl<T> KeyframeSelector<T> {
     pub fn new(options: KeyframeOptions) -> Self {
-        Self { options, last: None }
+        Self { options, last: None, pending: None }
     }
 
-    /// Offers the next frame: its time, the odometry position at that time if known, and its
-    /// image. Returns why it is a keyframe, or `None` to drop it.
-    pub fn offer(&mut self, time_ns: u64, position_m: Option<[f64; 3]>, image: &DynamicImage) -> Option<Reason> {
+    /// Offers the next frame: its payload, its time, the odometry position at that time if
+    /// known, and its image. Returns the frames that became keyframes (none, this one, the one
+    /// before it, or both), in stream order.
+    pub fn offer(&mut self, frame: T, time_ns: u64, position_m: Option<[f64; 3]>, image: &DynamicImage) -> Vec<(T, Reason)> {
         let options = self.options;
-        let thumb = || options.min_overlap.map(|_| Thumb::of(image));
-        let reason = match &self.last {
-            None => Some(Reason::First),
-            Some(_) if options == KeyframeOptions::ALL => Some(Reason::Every),
-            Some(last) => {
-                let elapsed_s = time_ns.saturating_sub(last.time_ns) as f64 * 1e-9;
-                let travelled_m = match (last.position_m, position_m) {
-                    (Some(a), Some(b)) => Some((0..3).map(|i| (a[i] - b[i]).powi(2)).sum::<f64>().sqrt()),
-                    _ => None,
-                };
-                if options.every_s.is_some_and(|every| elapsed_s >= every) {
-                    Some(Reason::Time)
-                } else if options.distance_m.zip(travelled_m).is_some_and(|(limit, d)| d >= limit) {
-                    Some(Reason::Distance)
-                } else if let (Some(min), Some(last_thumb)) = (options.min_overlap, &last.thumb) {
-                    let current = Thumb::of(image);
-                    (last_thumb.overlap(&current) < min).then_some(Reason::Overlap)
-                } else {
-                    None
-                }
-            }
-        };
-        if reason.is_some() {
-            self.last = Some(Last { time_ns, position_m, thumb: thumb() });
+        let seen = Seen { frame, time_ns, position_m, thumb: options.min_overlap.map(|_| Thumb::of(image)) };
+        let Some(last) = &self.last else { return vec![self.keep(seen, Reason::First)] };
+        if options == KeyframeOptions::ALL {
+            return vec![self.keep(seen, Reason::Every)];
         }
-        reason
+        let elapsed_s = time_ns.saturating_sub(last.time_ns) as f64 * 1e-9;
+        let travelled_m = match (last.position_m, position_m) {
+            (Some(a), Some(b)) => Some((0..3).map(|i| (a[i] - b[i]).powi(2)).sum::<f64>().sqrt()),
+            _ => None,
+        };
+        if options.every_s.is_some_and(|every| elapsed_s >= every) {
+            self.pending = None;
+            return vec![self.keep(seen, Reason::Time)];
+        }
+        if options.distance_m.zip(travelled_m).is_some_and(|(limit, d)| d >= limit) {
+            self.pending = None;
+            return vec![self.keep(seen, Reason::Distance)];
+        }
+        let (Some(min), Some(last_thumb), Some(thumb)) = (options.min_overlap, &last.thumb, &seen.thumb) else {
+            self.pending = Some(seen);
+            return Vec::new();
+        };
+        if last_thumb.overlap(thumb) >= min {
+            self.pending = Some(seen);
+            return Vec::new();
+        }
+        let mut kept = Vec::new();
+        if let Some(previous) = self.pending.take() {
+            let still_overlaps = match &previous.thumb {
+                Some(previous_thumb) => previous_thumb.overlap(thumb) >= min,
+                None => false,
+            };
+            kept.push(self.keep(previous, Reason::Overlap));
+            if still_overlaps {
+                self.pending = Some(seen);
+                return kept;
+            }
+        }
+        kept.push(self.keep(seen, Reason::Overlap));
+        kept
+    }
+
+    /// The last frame, if it was not kept: the end of a track is kept too.
+    pub fn finish(&mut self) -> Option<(T, Reason)> {
+        let last = self.pending.take()?;
+        Some(self.keep(last, Reason::Last))
+    }
+
+    fn keep(&mut self, seen: Seen<T>, reason: Reason) -> (T, Reason) {
+        let Seen { frame, time_ns, position_m, thumb } = seen;
+        self.last = Some(Seen { frame: (), time_ns, position_m, thumb });
+        (frame, reason)
     }
 }
 
-/// A small zero-mean grey copy of a frame.
+/// A small grey copy of a frame, high-passed (each pixel minus its 5x5 neighbourhood's mean) so
+/// that smooth shading cannot correlate by chance.
 struct Thumb {
     width: usize,
     height: usize,
@@ -123,45 +160,60 @@ impl Thumb {
     fn of(image: &DynamicImage) -> Thumb {
         let height = (THUMB_WIDTH_PX as f64 * image.height() as f64 / image.width().max(1) as f64).round().max(8.0) as u32;
         let grey: GrayImage = image.resize_exact(THUMB_WIDTH_PX, height, FilterType::Triangle).into_luma8();
-        let mean = grey.pixels().map(|p| f32::from(p.0[0])).sum::<f32>() / grey.len() as f32;
-        Thumb {
-            width: THUMB_WIDTH_PX as usize,
-            height: height as usize,
-            pixels: grey.pixels().map(|p| f32::from(p.0[0]) - mean).collect(),
+        let (w, h) = (THUMB_WIDTH_PX as usize, height as usize);
+        let at = |x: usize, y: usize| f32::from(grey.as_raw()[y * w + x]);
+        let mut pixels = Vec::with_capacity(w * h);
+        for y in 0..h {
+            for x in 0..w {
+                let (ys, xs) = (y.saturating_sub(2)..(y + 3).min(h), x.saturating_sub(2)..(x + 3).min(w));
+                let count = (ys.len() * xs.len()) as f32;
+                let sum: f32 = ys.flat_map(|v| xs.clone().map(move |u| (u, v))).map(|(u, v)| at(u, v)).sum();
+                pixels.push(at(x, y) - sum / count);
+            }
         }
+        Thumb { width: w, height: h, pixels }
     }
 
     /// The fraction of this thumbnail still seen in `other`: the translation (up to half the
-    /// image each way) with the least mean absolute difference over the shared area gives the
-    /// shared area. A frame that matches no shift well (a turn, a different scene) overlaps 0.
+    /// image each way) whose shared area correlates best (normalised cross-correlation) gives
+    /// the shared area. When no shift correlates well (a turn, a jump, another scene), 0.
     fn overlap(&self, other: &Thumb) -> f64 {
         if (self.width, self.height) != (other.width, other.height) {
             return 0.0;
         }
         let (w, h) = (self.width as isize, self.height as isize);
-        let mut best = (f32::INFINITY, 0.0);
+        let mut best = (f64::NEG_INFINITY, 0.0);
         for dy in -h / 2..=h / 2 {
             for dx in -w / 2..=w / 2 {
                 let (x0, x1) = (dx.max(0), (w + dx).min(w));
                 let (y0, y1) = (dy.max(0), (h + dy).min(h));
-                let mut sum = 0.0;
+                let (mut sa, mut sb, mut saa, mut sbb, mut sab) = (0.0f32, 0.0f32, 0.0f32, 0.0f32, 0.0f32);
                 for y in y0..y1 {
                     let a = &self.pixels[(y * w) as usize..][x0 as usize..x1 as usize];
                     let b = &other.pixels[((y - dy) * w) as usize..][(x0 - dx) as usize..(x1 - dx) as usize];
-                    sum += a.iter().zip(b).map(|(p, q)| (p - q).abs()).sum::<f32>();
+                    for (&p, &q) in a.iter().zip(b) {
+                        sa += p;
+                        sb += q;
+                        saa += p * p;
+                        sbb += q * q;
+                        sab += p * q;
+                    }
                 }
-                let area = ((x1 - x0) * (y1 - y0)) as f32;
-                let cost = sum / area;
-                if cost < best.0 {
-                    best = (cost, area as f64 / (w * h) as f64);
+                let n = ((x1 - x0) * (y1 - y0)) as f64;
+                let (sa, sb, saa, sbb, sab) = (f64::from(sa), f64::from(sb), f64::from(saa), f64::from(sbb), f64::from(sab));
+                let variance = (saa - sa * sa / n) * (sbb - sb * sb / n);
+                let ncc = if variance > 0.0 { (sab - sa * sb / n) / variance.sqrt() } else { 0.0 };
+                if ncc > best.0 {
+                    best = (ncc, n / (w * h) as f64);
                 }
             }
         }
-        // Aligned content differs by noise; unrelated content by about its own contrast.
-        let contrast = self.pixels.iter().map(|p| p.abs()).sum::<f32>() / self.pixels.len() as f32;
-        if best.0 > 0.5 * contrast { 0.0 } else { best.1 }
+        if best.0 >= MIN_CORRELATION { best.1 } else { 0.0 }
     }
 }
+
+/// The correlation below which two frames are taken not to overlap at all.
+const MIN_CORRELATION: f64 = 0.9;
 
 #[cfg(test)]
 mod tests {
@@ -202,22 +254,39 @@ mod tests {
     #[test]
     fn a_frame_is_kept_when_overlap_time_or_distance_says_so() {
         let mut selector = KeyframeSelector::new(KeyframeOptions::default());
-        let kept: Vec<u32> = (0..=40)
-            .filter(|i| selector.offer(u64::from(*i) * 33_000_000, None, &view(100 + 8 * i, 100)).is_some())
-            .collect();
-        // 8 px a frame: overlap falls below 0.7 after 96 px, i.e. every 13th frame.
-        assert_eq!(kept, vec![0, 13, 26, 39]);
+        let mut kept: Vec<u32> = Vec::new();
+        for i in 0..=40u32 {
+            let frames = selector.offer(i, u64::from(i) * 33_000_000, None, &view(100 + 8 * i, 100));
+            kept.extend(frames.into_iter().map(|(frame, _)| frame));
+        }
+        kept.extend(selector.finish().map(|(frame, _)| frame));
+        // 8 px a frame: the overlap with the last keyframe falls below 0.7 after 96 px, so every
+        // 12th frame is kept (the last one still at or above 0.7), and the stream's last frame.
+        assert_eq!(kept, vec![0, 12, 24, 36, 40]);
 
         let options = KeyframeOptions { min_overlap: None, every_s: Some(1.0), distance_m: Some(2.0) };
         let mut selector = KeyframeSelector::new(options);
         let still = view(100, 100);
         let mut reasons = Vec::new();
         for (t_s, x_m) in [(0.0, 0.0), (0.5, 0.5), (0.9, 2.5), (1.5, 2.6), (2.0, 2.7)] {
-            reasons.push(selector.offer((t_s * 1e9) as u64, Some([x_m, 0.0, 0.0]), &still));
+            reasons.push(selector.offer((), (t_s * 1e9) as u64, Some([x_m, 0.0, 0.0]), &still).first().map(|k| k.1));
         }
         assert_eq!(reasons, vec![Some(Reason::First), None, Some(Reason::Distance), None, Some(Reason::Time)]);
 
         let mut every = KeyframeSelector::new(KeyframeOptions::ALL);
-        assert!((0..5).all(|i| every.offer(i, None, &still).is_some()));
+        assert!((0..5).all(|i| every.offer((), i, None, &still).len() == 1));
+    }
+
+    #[test]
+    fn a_jump_keeps_the_frames_on_both_sides() {
+        // Along a line, then a jump to the next line (no overlap), then along again.
+        let mut selector = KeyframeSelector::new(KeyframeOptions::default());
+        let mut kept = Vec::new();
+        for (i, (x, y)) in [(100, 100), (110, 100), (120, 100), (120, 400), (110, 400), (100, 400)].into_iter().enumerate() {
+            kept.extend(selector.offer(i, i as u64, None, &view(x, y)).into_iter().map(|(f, r)| (f, r)));
+        }
+        kept.extend(selector.finish());
+        let frames: Vec<usize> = kept.iter().map(|k| k.0).collect();
+        assert_eq!(frames, vec![0, 2, 3, 5]);
     }
 }
