@@ -213,7 +213,7 @@ impl Thumb {
 }
 
 /// The correlation below which two frames are taken not to overlap at all.
-const MIN_CORRELATION: f64 = 0.9;
+const MIN_CORRELATION: f64 = 0.6;
 
 #[cfg(test)]
 mod tests {
@@ -222,7 +222,13 @@ mod tests {
 
     /// Value noise: a hashed value per cell of `cell` pixels, interpolated bilinearly.
     fn noise(u: f32, v: f32, cell: f32) -> f32 {
-        let hash = |i: i64, j: i64| ((i.wrapping_mul(73_856_093) ^ j.wrapping_mul(19_349_663)) & 0xFFFF) as f32 / 65_535.0;
+        let hash = |i: i64, j: i64| {
+            // splitmix64's finaliser of the cell's coordinates.
+            let mut z = (i as u64).wrapping_mul(0x9E37_79B9_7F4A_7C15) ^ (j as u64).wrapping_mul(0xC2B2_AE3D_27D4_EB4F);
+            z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
+            z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
+            ((z ^ (z >> 31)) >> 40) as f32 / 16_777_215.0
+        };
         let (x, y) = (u / cell, v / cell);
         let (i, j) = (x.floor() as i64, y.floor() as i64);
         let (fx, fy) = (x - x.floor(), y - y.floor());

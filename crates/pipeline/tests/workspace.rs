@@ -104,6 +104,7 @@ fn a_visit_with_two_image_sizes_reconstructs_with_two_cameras() {
             width: size.0,
             height: size.1,
             seed: 5,
+            ..Default::default()
         };
         render(&options, |_| visit.clone(), prefix);
     }

@@ -99,11 +99,23 @@ pub struct SynthOptions {
     pub width: u32,
     /// Image height in pixels. Default 480; at least 48.
     pub height: u32,
+    /// Frames per step between planned survey positions. Default 1; more makes a video-rate
+    /// sequence, each step subdivided along the track, and a session holds
+    /// `(images_per_session - 1) * frames_per_step + 1` frames.
+    pub frames_per_step: usize,
 }
 
 impl Default for SynthOptions {
     fn default() -> Self {
-        Self { sessions: 3, images_per_session: 60, seed: 0, change: ChangeGrade::Mild, width: 640, height: 480 }
+        Self {
+            sessions: 3,
+            images_per_session: 60,
+            seed: 0,
+            change: ChangeGrade::Mild,
+            width: 640,
+            height: 480,
+            frames_per_step: 1,
+        }
     }
 }
 

@@ -254,6 +254,7 @@ pub fn plan(options: &SynthOptions) -> Result<Survey, SynthError> {
         let along = Vector3::new(heading.cos(), heading.sin(), 0.0);
         let across = Vector3::new(-heading.sin(), heading.cos(), 0.0);
         let mut images = Vec::with_capacity(n);
+        let mut poses = Vec::with_capacity(n);
         for line in 0..lines {
             let per_line = n / lines + usize::from(line < n % lines);
             let cross = if lines > 1 { -0.5 * region_m + region_m * line as f64 / (lines - 1) as f64 } else { 0.0 };
@@ -273,19 +274,32 @@ pub fn plan(options: &SynthOptions) -> Result<Survey, SynthError> {
                     (attitude * srng.normal()).clamp(-0.07, 0.07),
                     (attitude * srng.normal()).clamp(-0.07, 0.07),
                 );
-                let world_from_cam = Rigid3::new(world_from_cam_rot, centre);
-                let i = images.len();
-                let file = format!("{name}_{i:04}.png");
-                images.push(ImageTruth {
-                    image_id: (index.len() + 1) as ImageId,
-                    session: s,
-                    name: revisit_core::image_name(&name, &file),
-                    file,
-                    cam_from_world: world_from_cam.inverse(),
-                    time_s: i as f64 * FRAME_INTERVAL_S,
-                });
-                index.push((s, i));
+                poses.push(Rigid3::new(world_from_cam_rot, centre));
             }
+        }
+        // Video: each step between planned positions subdivided along the track.
+        let steps = options.frames_per_step.max(1);
+        let mut frames = Vec::with_capacity(poses.len() * steps);
+        for pair in poses.windows(2) {
+            for k in 0..steps {
+                let f = k as f64 / steps as f64;
+                let rotation = pair[0].rotation.slerp(&pair[1].rotation, f);
+                frames.push(Rigid3 { rotation, translation: pair[0].translation.lerp(&pair[1].translation, f) });
+            }
+        }
+        frames.extend(poses.last().copied());
+        for world_from_cam in frames {
+            let i = images.len();
+            let file = format!("{name}_{i:04}.png");
+            images.push(ImageTruth {
+                image_id: (index.len() + 1) as ImageId,
+                session: s,
+                name: revisit_core::image_name(&name, &file),
+                file,
+                cam_from_world: world_from_cam.inverse(),
+                time_s: i as f64 * FRAME_INTERVAL_S / steps as f64,
+            });
+            index.push((s, i));
         }
         sessions.push(SessionPlan {
             name,

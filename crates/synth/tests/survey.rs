@@ -7,7 +7,7 @@ use nalgebra::Point2;
 use revisit_synth::{plan, ChangeGrade, EvaluationOptions, Survey, SynthError, SynthOptions, NO_DEPTH};
 
 fn small(change: ChangeGrade, sessions: usize, seed: u64) -> SynthOptions {
-    SynthOptions { sessions, images_per_session: 6, seed, change, width: 160, height: 120 }
+    SynthOptions { sessions, images_per_session: 6, seed, change, width: 160, height: 120, ..Default::default() }
 }
 
 #[allow(clippy::unwrap_used)] // test fixture

@@ -41,6 +41,10 @@ pub struct Args {
     /// Image size WxH in pixels (at least 64x48).
     #[arg(long, default_value = "640x480", value_parser = parse_size)]
     size: (u32, u32),
+    /// Frames per step between planned survey positions: N > 1 renders a video-rate sequence
+    /// (each step subdivided along the track; a visit holds (images-per-session - 1) * N + 1 frames).
+    #[arg(long, default_value_t = 1, value_parser = clap::value_parser!(u16).range(1..=1000))]
+    frames_per_step: u16,
     /// Evaluation image pairs per session pair.
     #[arg(long, default_value_t = 30)]
     eval_pairs: usize,
@@ -84,6 +88,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         change: args.change,
         width: args.size.0,
         height: args.size.1,
+        frames_per_step: usize::from(args.frames_per_step),
     };
     let survey = revisit_synth::plan(&options).context("planning the survey")?;
     info!(
