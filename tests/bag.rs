@@ -165,3 +165,104 @@ fn damaged_bags_and_wrong_arguments_are_one_line_errors() {
     let error = run_err(&["bag", "pack", "--session", &spec, "--out", fresh.to_str().unwrap(), "--rate", "0"]);
     assert!(one_line(&error).contains("--rate"), "{error}");
 }
+
+fn synth(out: &Path, extra: &[&str]) {
+    let mut args = vec!["synth", "--out", out.to_str().unwrap(), "--size", "320x240", "--bag"];
+    args.extend_from_slice(extra);
+    run_ok(&args);
+}
+
+fn registered(work: &Path) -> Vec<(String, u64, u64)> {
+    let report = common::read_json(&work.join("report.json"));
+    let sessions = report["sessions"].as_object().unwrap();
+    sessions
+        .iter()
+        .map(|(name, s)| (name.clone(), s["images"].as_u64().unwrap(), s["registered"].as_u64().unwrap()))
+        .collect()
+}
+
+fn median_error_px(work: &Path, truth: &Path) -> f64 {
+    let json = work.join("eval.json");
+    let mut args = vec!["eval".to_owned(), "--model".into(), work.join("model").display().to_string()];
+    args.push("--truth".into());
+    args.push(truth.display().to_string());
+    args.push("--json".into());
+    args.push(json.display().to_string());
+    args.push("--points".into());
+    for entry in std::fs::read_dir(truth).unwrap() {
+        let path = entry.unwrap().path();
+        if path.file_name().unwrap().to_str().unwrap().starts_with("evaluation_points_") {
+            args.push(path.display().to_string());
+        }
+    }
+    run_ok(&args.iter().map(String::as_str).collect::<Vec<_>>());
+    common::read_json(&json)["median_px"].as_f64().unwrap()
+}
+
+#[test]
+fn a_synthetic_survey_reconstructs_from_bags_as_from_folders() {
+    let work = tempfile::tempdir().unwrap();
+    let survey = work.path().join("survey");
+    synth(&survey, &["--sessions", "3", "--images-per-session", "12", "--change", "mild"]);
+    let folders = work.path().join("folders");
+    let bags = work.path().join("bags");
+    let mut from_folders = vec!["reconstruct", "--cross", "sift", "--out", folders.to_str().unwrap()];
+    let mut from_bags = vec!["reconstruct", "--cross", "sift", "--all-frames", "--out", bags.to_str().unwrap()];
+    let specs: Vec<(String, String)> = ["s1", "s2", "s3"]
+        .iter()
+        .map(|s| {
+            (
+                format!("{s}={}", survey.join("sessions").join(s).display()),
+                format!("{s}={}", survey.join("bags").join(s).display()),
+            )
+        })
+        .collect();
+    for (folder, bag) in &specs {
+        from_folders.extend(["--session", folder.as_str()]);
+        from_bags.extend(["--bag", bag.as_str()]);
+    }
+    run_ok(&from_folders);
+    run_ok(&from_bags);
+    assert_eq!(registered(&bags), registered(&folders));
+    assert!(registered(&bags).iter().all(|(_, images, registered)| images == registered && *images == 12));
+    let truth = survey.join("truth");
+    let (folder_px, bag_px) = (median_error_px(&folders, &truth), median_error_px(&bags, &truth));
+    assert!((folder_px - bag_px).abs() <= 0.1, "cross-visit error {bag_px} px from bags, {folder_px} px from folders");
+}
+
+#[test]
+fn keyframes_of_a_30_hz_bag_keep_a_fraction_and_every_keyframe_registers() {
+    let work = tempfile::tempdir().unwrap();
+    let survey = work.path().join("survey");
+    // 23 steps of 10 frames: 231 frames at 30 Hz.
+    synth(
+        &survey,
+        &[
+            "--sessions",
+            "1",
+            "--images-per-session",
+            "24",
+            "--frames-per-step",
+            "10",
+            "--bag-rate",
+            "30",
+            "--eval-pairs",
+            "0",
+        ],
+    );
+    let out = work.path().join("work");
+    let bag = format!("s1={}", survey.join("bags/s1").display());
+    run_ok(&["reconstruct", "--cross", "none", "--bag", &bag, "--out", out.to_str().unwrap()]);
+    let ingested = common::read_json(&out.join("frames/s1.ingested.json"));
+    let visit = &ingested["visits"][0];
+    let (frames, kept) = (visit["frames"].as_u64().unwrap(), visit["keyframes"].as_u64().unwrap());
+    assert_eq!(frames, 231);
+    // The default (overlap below 0.7) keeps about one frame in six here: 37 of 231.
+    assert!((23..=70).contains(&kept), "{kept} of {frames} frames kept");
+    assert_eq!(registered(&out), vec![("s1".to_owned(), kept, kept)]);
+
+    // Running again reads nothing from the bag: the keyframes are stored.
+    let stamp = std::fs::metadata(out.join("frames/s1.ingested.json")).unwrap().modified().unwrap();
+    run_ok(&["reconstruct", "--cross", "none", "--bag", &bag, "--out", out.to_str().unwrap()]);
+    assert_eq!(std::fs::metadata(out.join("frames/s1.ingested.json")).unwrap().modified().unwrap(), stamp);
+}

@@ -336,7 +336,7 @@ pub fn raw_image(header: Header, image: &DynamicImage) -> Image {
 }
 
 /// How [`ingest`] turns a bag into visits.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
 #[serde(default, deny_unknown_fields)]
 pub struct IngestOptions {
     /// The image topic; `None`: the bag's only image topic.
@@ -346,17 +346,14 @@ pub struct IngestOptions {
     pub keyframes: KeyframeOptions,
 }
 
-impl Default for IngestOptions {
-    fn default() -> Self {
-        Self { topic: None, split_gap_s: None, keyframes: KeyframeOptions::default() }
-    }
-}
 
 /// What [`ingest`] found and kept; stored beside the frames, so that running again with the same
 /// bag and options reads nothing.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct Ingested {
     pub bag: PathBuf,
+    /// The bag's storage size: a bag rewritten in place is read again.
+    pub bag_bytes: u64,
     pub options: IngestOptions,
     pub topic: String,
     /// The visits, in time order, each with its folder of keyframes.
@@ -403,11 +400,13 @@ pub fn ingest(
         return Err(PipelineError::Bag("--split-gap must be a positive number of seconds".into()));
     }
     let bag = Bag::open(&spec.dir).map_err(bag_error)?;
-    let bag_path = fs::canonicalize(&spec.dir).map_err(|source| PipelineError::Io { path: spec.dir.clone(), source })?;
+    let bag_path =
+        fs::canonicalize(&spec.dir).map_err(|source| PipelineError::Io { path: spec.dir.clone(), source })?;
+    let bag_bytes = bag.files().iter().filter_map(|f| fs::metadata(f).ok()).map(|m| m.len()).sum();
     let marker = out.join(format!("{}.ingested.json", spec.name));
     if let Ok(text) = fs::read_to_string(&marker) {
         if let Ok(done) = serde_json::from_str::<Ingested>(&text) {
-            if done.bag == bag_path && done.options == *options {
+            if done.bag == bag_path && done.bag_bytes == bag_bytes && done.options == *options {
                 return Ok(done);
             }
         }
@@ -458,7 +457,10 @@ pub fn ingest(
             0 => message.log_time_ns,
             stamp => u64::try_from(stamp).unwrap_or(message.log_time_ns),
         };
-        let gap = options.split_gap_s.zip(last_frame_ns).is_some_and(|(gap_s, last)| time_ns.saturating_sub(last) as f64 * 1e-9 > gap_s);
+        let gap = options
+            .split_gap_s
+            .zip(last_frame_ns)
+            .is_some_and(|(gap_s, last)| time_ns.saturating_sub(last) as f64 * 1e-9 > gap_s);
         last_frame_ns = Some(time_ns);
         if visits.is_empty() || gap {
             if let (Some(visit), Some((kept, _))) = (visits.last_mut(), selector.finish()) {
@@ -490,7 +492,7 @@ pub fn ingest(
     if visits.is_empty() {
         return Err(no_frames(&bag, &topic));
     }
-    let ingested = Ingested { bag: bag_path, options: options.clone(), topic, visits, skipped };
+    let ingested = Ingested { bag: bag_path, bag_bytes, options: options.clone(), topic, visits, skipped };
     let text = serde_json::to_string_pretty(&ingested).map_err(|e| PipelineError::Bag(e.to_string()))?;
     write_atomically(&marker, text.as_bytes())?;
     Ok(ingested)
@@ -498,7 +500,10 @@ pub fn ingest(
 
 /// Writes a kept frame, `(index in the visit, image, origin)`, into its visit's folder:
 /// compressed frames as their own file, raw ones as PNG.
-fn write_keyframe(visit: &mut IngestedVisit, (index, image, origin): (usize, FrameImage, PathBuf)) -> Result<(), PipelineError> {
+fn write_keyframe(
+    visit: &mut IngestedVisit,
+    (index, image, origin): (usize, FrameImage, PathBuf),
+) -> Result<(), PipelineError> {
     let (format, bytes) = match image {
         FrameImage::File { bytes, format } => (format, bytes),
         FrameImage::Raw(message) => {

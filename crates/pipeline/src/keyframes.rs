@@ -91,7 +91,13 @@ impl<T> KeyframeSelector<T> {
     /// Offers the next frame: its payload, its time, the odometry position at that time if
     /// known, and its image. Returns the frames that became keyframes (none, this one, the one
     /// before it, or both), in stream order.
-    pub fn offer(&mut self, frame: T, time_ns: u64, position_m: Option<[f64; 3]>, image: &DynamicImage) -> Vec<(T, Reason)> {
+    pub fn offer(
+        &mut self,
+        frame: T,
+        time_ns: u64,
+        position_m: Option<[f64; 3]>,
+        image: &DynamicImage,
+    ) -> Vec<(T, Reason)> {
         let options = self.options;
         let seen = Seen { frame, time_ns, position_m, thumb: options.min_overlap.map(|_| Thumb::of(image)) };
         let Some(last) = &self.last else { return vec![self.keep(seen, Reason::First)] };
@@ -158,7 +164,8 @@ struct Thumb {
 
 impl Thumb {
     fn of(image: &DynamicImage) -> Thumb {
-        let height = (THUMB_WIDTH_PX as f64 * image.height() as f64 / image.width().max(1) as f64).round().max(8.0) as u32;
+        let height =
+            (THUMB_WIDTH_PX as f64 * image.height() as f64 / image.width().max(1) as f64).round().max(8.0) as u32;
         let grey: GrayImage = image.resize_exact(THUMB_WIDTH_PX, height, FilterType::Triangle).into_luma8();
         let (w, h) = (THUMB_WIDTH_PX as usize, height as usize);
         let at = |x: usize, y: usize| f32::from(grey.as_raw()[y * w + x]);
@@ -200,7 +207,8 @@ impl Thumb {
                     }
                 }
                 let n = ((x1 - x0) * (y1 - y0)) as f64;
-                let (sa, sb, saa, sbb, sab) = (f64::from(sa), f64::from(sb), f64::from(saa), f64::from(sbb), f64::from(sab));
+                let (sa, sb, saa, sbb, sab) =
+                    (f64::from(sa), f64::from(sb), f64::from(saa), f64::from(sbb), f64::from(sab));
                 let variance = (saa - sa * sa / n) * (sbb - sb * sb / n);
                 let ncc = if variance > 0.0 { (sab - sa * sb / n) / variance.sqrt() } else { 0.0 };
                 if ncc > best.0 {
@@ -208,7 +216,11 @@ impl Thumb {
                 }
             }
         }
-        if best.0 >= MIN_CORRELATION { best.1 } else { 0.0 }
+        if best.0 >= MIN_CORRELATION {
+            best.1
+        } else {
+            0.0
+        }
     }
 }
 
@@ -253,7 +265,8 @@ mod tests {
             let overlap = start.overlap(&Thumb::of(&view(100 + dx, 100 + dy)));
             assert!((overlap - expected).abs() < 0.05, "shift ({dx}, {dy}): overlap {overlap:.3}, expected {expected}");
         }
-        let unrelated = DynamicImage::ImageRgb8(RgbImage::from_fn(320, 240, |x, y| image::Rgb([((x * y) % 251) as u8; 3])));
+        let unrelated =
+            DynamicImage::ImageRgb8(RgbImage::from_fn(320, 240, |x, y| image::Rgb([((x * y) % 251) as u8; 3])));
         assert!(start.overlap(&Thumb::of(&unrelated)) < 0.3);
     }
 
@@ -288,8 +301,10 @@ mod tests {
         // Along a line, then a jump to the next line (no overlap), then along again.
         let mut selector = KeyframeSelector::new(KeyframeOptions::default());
         let mut kept = Vec::new();
-        for (i, (x, y)) in [(100, 100), (110, 100), (120, 100), (120, 400), (110, 400), (100, 400)].into_iter().enumerate() {
-            kept.extend(selector.offer(i, i as u64, None, &view(x, y)).into_iter().map(|(f, r)| (f, r)));
+        for (i, (x, y)) in
+            [(100, 100), (110, 100), (120, 100), (120, 400), (110, 400), (100, 400)].into_iter().enumerate()
+        {
+            kept.extend(selector.offer(i, i as u64, None, &view(x, y))));
         }
         kept.extend(selector.finish());
         let frames: Vec<usize> = kept.iter().map(|k| k.0).collect();

@@ -368,10 +368,8 @@ impl Survey {
         let Some(session) = self.sessions.get(s) else { return Vec::new() };
         let mut rng = SplitMix64::stream(self.options.seed, 0x0D0_0000 + s as u64);
         let scale = 1.0 + DRIFT_SCALE_SIGMA * rng.normal();
-        let heading = UnitQuaternion::from_axis_angle(
-            &Vector3::z_axis(),
-            (DRIFT_HEADING_SIGMA_DEG * rng.normal()).to_radians(),
-        );
+        let heading =
+            UnitQuaternion::from_axis_angle(&Vector3::z_axis(), (DRIFT_HEADING_SIGMA_DEG * rng.normal()).to_radians());
         let Some(first) = session.images.first() else { return Vec::new() };
         let origin = first.cam_from_world.inverse().translation;
         let mut walk = Vector3::zeros();

@@ -98,7 +98,12 @@ fn reconstruct(args: &Args, cancel: &revisit_pipeline::Cancel) -> Result<Report>
             tracing::info!("{}: {} of {} frames of {} kept", visit.name, visit.keyframes, visit.frames, ingested.topic);
         }
         if !ingested.skipped.is_empty() {
-            tracing::warn!("--bag {}: {} messages skipped, first: {}", bag.name, ingested.skipped.len(), ingested.skipped[0]);
+            tracing::warn!(
+                "--bag {}: {} messages skipped, first: {}",
+                bag.name,
+                ingested.skipped.len(),
+                ingested.skipped[0]
+            );
         }
         specs.extend(ingested.sessions());
     }

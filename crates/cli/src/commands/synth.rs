@@ -130,7 +130,10 @@ pub fn run(args: Args) -> anyhow::Result<()> {
 
     write_truth(&survey, &truth_dir, args.eval_pairs)?;
     if args.bag {
-        anyhow::ensure!(args.bag_rate.is_finite() && args.bag_rate > 0.0, "--bag-rate must be a positive number of frames per second");
+        anyhow::ensure!(
+            args.bag_rate.is_finite() && args.bag_rate > 0.0,
+            "--bag-rate must be a positive number of frames per second"
+        );
         for s in 0..survey.sessions().len() {
             let written = write_bag(&survey, s, &sessions_dir, &args.out.join("bags"), args.bag_rate)?;
             info!("wrote {} messages to {}", written.messages, written.dir.display());
@@ -178,7 +181,8 @@ fn write_bag(
 
     let start_ns = revisit_pipeline::bags::PACK_START_NS + s as u64 * 86_400_000_000_000;
     let time_ns = |i: usize| start_ns + (i as f64 * 1e9 / rate_hz).round() as u64;
-    let header = |time_ns: u64, frame_id: &str| Header { stamp: Time::from_nanos(time_ns as i64), frame_id: frame_id.into() };
+    let header =
+        |time_ns: u64, frame_id: &str| Header { stamp: Time::from_nanos(time_ns as i64), frame_id: frame_id.into() };
     let marker = |command, time_ns| SessionControl {
         header: header(time_ns, ""),
         command,
@@ -215,7 +219,11 @@ fn write_bag(
             pose: Pose { position: Point { x: p.x, y: p.y, z: p.z }, orientation: Quaternion { x, y, z, w } },
             covariance,
         };
-        bag.write(odometry, t, &Odometry { header: header(t, "odom"), child_frame_id: "camera".into(), pose, ..Odometry::default() })?;
+        bag.write(
+            odometry,
+            t,
+            &Odometry { header: header(t, "odom"), child_frame_id: "camera".into(), pose, ..Odometry::default() },
+        )?;
     }
     let end = time_ns(session.images.len());
     bag.write(control, end, &marker(SessionControl::END, end))?;
