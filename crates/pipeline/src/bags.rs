@@ -346,7 +346,6 @@ pub struct IngestOptions {
     pub keyframes: KeyframeOptions,
 }
 
-
 /// What [`ingest`] found and kept; stored beside the frames, so that running again with the same
 /// bag and options reads nothing.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]

@@ -304,7 +304,7 @@ mod tests {
         for (i, (x, y)) in
             [(100, 100), (110, 100), (120, 100), (120, 400), (110, 400), (100, 400)].into_iter().enumerate()
         {
-            kept.extend(selector.offer(i, i as u64, None, &view(x, y))));
+            kept.extend(selector.offer(i, i as u64, None, &view(x, y)));
         }
         kept.extend(selector.finish());
         let frames: Vec<usize> = kept.iter().map(|k| k.0).collect();
