@@ -25,7 +25,7 @@ struct Cli {
 #[derive(Subcommand)]
 enum Command {
     /// Reconstruct one or more sessions (visits) jointly into one COLMAP model.
-    Reconstruct(commands::reconstruct::Args),
+    Reconstruct(Box<commands::reconstruct::Args>),
     /// Render a synthetic multi-visit reef survey with exact ground truth.
     Synth(commands::synth::Args),
     /// Score a reconstruction with the published cross-visit reprojection protocol.
@@ -47,7 +47,7 @@ fn main() -> std::process::ExitCode {
     let cli = Cli::parse();
     progress::init_logging(cli.verbose);
     let result = match cli.command {
-        Command::Reconstruct(args) => commands::reconstruct::run(args),
+        Command::Reconstruct(args) => commands::reconstruct::run(*args),
         Command::Synth(args) => commands::synth::run(args),
         Command::Eval(args) => commands::eval::run(args),
         Command::Match(args) => commands::match_pair::run(args),
