@@ -3,6 +3,10 @@
 check BAG EXPECTED.json   decode every message of a Revisit-written mcap bag with mcap-ros2-support and
                           with rosbags; each must equal the values Revisit wrote (EXPECTED: topic ->
                           {type, schema, values}).
+cyclonedds OUT.json EXPECTED.json
+                          decode each EXPECTED message's CDR (`cdr`, hex) with PyPI cyclonedds's IDL types
+                          (for the types in IDL below); each must equal `values`. Then encode
+                          `values` with them and write OUT.json: type -> list of hex CDR.
 write DIR EXPECTED.json   write EXPECTED's messages with independent encoders: DIR/rosbags_db3 (sqlite3)
                           and DIR/rosbags_mcap (rosbags, with its own definitions of ROS's types), and
                           DIR/mcap_ros2.mcap (mcap-ros2-support).
@@ -34,6 +38,8 @@ def plain(value):
         return [plain(v) for v in value]
     if isinstance(value, np.generic):
         return value.item()
+    if dataclasses.is_dataclass(value) and not hasattr(value, "__msgtype__"):  # cyclonedds
+        return {f.name: plain(getattr(value, f.name)) for f in dataclasses.fields(value)}
     if dataclasses.is_dataclass(value):  # rosbags: fields as its typestore defines them, not constants
         _, fields = STORE.fielddefs[value.__msgtype__]
         return {name: plain(getattr(value, name)) for name, _ in fields}
@@ -135,7 +141,150 @@ def write(out, expected):
     print(f"write: {out}")
 
 
+def idl_types():
+    """A few ROS 2 types as Cyclone DDS IDL, written from the ROS definitions independently of Revisit."""
+    from dataclasses import dataclass
+
+    from cyclonedds.idl import IdlStruct
+    from cyclonedds.idl.types import array, float64, int8, int32, sequence, uint8, uint16, uint32
+
+    @dataclass
+    class Time(IdlStruct, typename="builtin_interfaces::msg::dds_::Time_"):
+        sec: int32
+        nanosec: uint32
+
+    @dataclass
+    class Header(IdlStruct, typename="std_msgs::msg::dds_::Header_"):
+        stamp: Time
+        frame_id: str
+
+    @dataclass
+    class Image(IdlStruct, typename="sensor_msgs::msg::dds_::Image_"):
+        header: Header
+        height: uint32
+        width: uint32
+        encoding: str
+        is_bigendian: uint8
+        step: uint32
+        data: sequence[uint8]
+
+    @dataclass
+    class RegionOfInterest(IdlStruct, typename="sensor_msgs::msg::dds_::RegionOfInterest_"):
+        x_offset: uint32
+        y_offset: uint32
+        height: uint32
+        width: uint32
+        do_rectify: bool
+
+    @dataclass
+    class CameraInfo(IdlStruct, typename="sensor_msgs::msg::dds_::CameraInfo_"):
+        header: Header
+        height: uint32
+        width: uint32
+        distortion_model: str
+        d: sequence[float64]
+        k: array[float64, 9]
+        r: array[float64, 9]
+        p: array[float64, 12]
+        binning_x: uint32
+        binning_y: uint32
+        roi: RegionOfInterest
+
+    @dataclass
+    class NavSatStatus(IdlStruct, typename="sensor_msgs::msg::dds_::NavSatStatus_"):
+        status: int8
+        service: uint16
+
+    @dataclass
+    class NavSatFix(IdlStruct, typename="sensor_msgs::msg::dds_::NavSatFix_"):
+        header: Header
+        status: NavSatStatus
+        latitude: float64
+        longitude: float64
+        altitude: float64
+        position_covariance: array[float64, 9]
+        position_covariance_type: uint8
+
+    @dataclass
+    class Point(IdlStruct, typename="geometry_msgs::msg::dds_::Point_"):
+        x: float64
+        y: float64
+        z: float64
+
+    @dataclass
+    class Quaternion(IdlStruct, typename="geometry_msgs::msg::dds_::Quaternion_"):
+        x: float64
+        y: float64
+        z: float64
+        w: float64
+
+    @dataclass
+    class Pose(IdlStruct, typename="geometry_msgs::msg::dds_::Pose_"):
+        position: Point
+        orientation: Quaternion
+
+    @dataclass
+    class PoseWithCovariance(IdlStruct, typename="geometry_msgs::msg::dds_::PoseWithCovariance_"):
+        pose: Pose
+        covariance: array[float64, 36]
+
+    @dataclass
+    class Vector3(IdlStruct, typename="geometry_msgs::msg::dds_::Vector3_"):
+        x: float64
+        y: float64
+        z: float64
+
+    @dataclass
+    class Twist(IdlStruct, typename="geometry_msgs::msg::dds_::Twist_"):
+        linear: Vector3
+        angular: Vector3
+
+    @dataclass
+    class TwistWithCovariance(IdlStruct, typename="geometry_msgs::msg::dds_::TwistWithCovariance_"):
+        twist: Twist
+        covariance: array[float64, 36]
+
+    @dataclass
+    class Odometry(IdlStruct, typename="nav_msgs::msg::dds_::Odometry_"):
+        header: Header
+        child_frame_id: str
+        pose: PoseWithCovariance
+        twist: TwistWithCovariance
+
+    return {"builtin_interfaces/msg/Time": Time, "std_msgs/msg/Header": Header, "sensor_msgs/msg/Image": Image,
+            "sensor_msgs/msg/CameraInfo": CameraInfo, "sensor_msgs/msg/NavSatFix": NavSatFix,
+            "nav_msgs/msg/Odometry": Odometry}
+
+
+def idl_value(cls, value):
+    """An IDL struct from JSON-like values."""
+    import typing
+
+    from cyclonedds.idl import IdlStruct
+    hints = typing.get_type_hints(cls)
+    fields = {}
+    for f in dataclasses.fields(cls):
+        hint = hints[f.name]
+        if isinstance(hint, type) and issubclass(hint, IdlStruct):
+            fields[f.name] = idl_value(hint, value[f.name])
+        else:
+            fields[f.name] = value[f.name]
+    return cls(**fields)
+
+
+def cyclonedds(out, expected):
+    types = idl_types()
+    encoded = {}
+    for name, entry in expected.items():
+        cls = types[name]
+        for i, (value, cdr) in enumerate(zip(entry["values"], entry["cdr"])):
+            compare(f"cyclonedds {name}[{i}]", plain(cls.deserialize(bytes.fromhex(cdr))), value)
+        encoded[name] = [idl_value(cls, value).serialize().hex() for value in entry["values"]]
+    Path(out).write_text(json.dumps(encoded))
+    print(f"cyclonedds: {len(expected)} types equal both ways")
+
+
 if __name__ == "__main__":
     command, path, expected_path = sys.argv[1:]
     expected = json.loads(Path(expected_path).read_text())
-    {"check": check, "write": write}[command](path, expected)
+    {"check": check, "write": write, "cyclonedds": cyclonedds}[command](path, expected)
