@@ -1,6 +1,7 @@
 //! Damaged bags never panic, hang or allocate without bound: thousands of deterministic
 //! truncations and byte flips of a real bag (the shared t265 mcap), a bag Revisit writes (zstd
 //! chunks) and a sqlite3 bag `rosbags` writes, each read to the end with every message decoded.
+//! `MUTATION_TRACE=1` prints each mutation before it is read (run with `--nocapture`).
 
 #![allow(clippy::unwrap_used, clippy::expect_used)]
 

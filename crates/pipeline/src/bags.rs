@@ -147,23 +147,16 @@ pub fn export(
         let frame = frame?;
         let index = exported.images;
         let (file, bytes) = match &frame.image {
-            FrameImage::File { bytes, format } => {
-                let extension = if *format == ImageFormat::Jpeg { "jpg" } else { "png" };
-                (format!("{index:06}.{extension}"), bytes.clone())
-            }
+            FrameImage::File { bytes, format } => (format!("{index:06}.{}", extension(*format)), bytes.clone()),
             FrameImage::Raw(_) => {
                 let origin = PathBuf::from(format!("{} topic {topic} frame {index}", bag.path().display()));
-                let mut png = Vec::new();
-                let encoded = frame.decode(&origin).and_then(|image| {
-                    image
-                        .write_to(&mut std::io::Cursor::new(&mut png), ImageFormat::Png)
-                        .map_err(|e| PipelineError::BadImage { path: origin, reason: e.to_string() })
-                });
-                if let Err(error) = encoded {
-                    undecodable.push(error.to_string());
-                    continue;
+                match frame.decode(&origin).and_then(|image| png(&image, &origin)) {
+                    Ok(png) => (format!("{index:06}.png"), png),
+                    Err(error) => {
+                        undecodable.push(error.to_string());
+                        continue;
+                    }
                 }
-                (format!("{index:06}.png"), png)
             }
         };
         let path = out.join(&file);
@@ -202,6 +195,24 @@ fn no_frames(bag: &Bag, topic: &str) -> PipelineError {
         })
         .unwrap_or_else(|e| e.to_string());
     PipelineError::Bag(format!("{}: topic {topic} has no images; image topics: {topics}", bag.path().display()))
+}
+
+/// The file extension of an image format Revisit reads.
+fn extension(format: ImageFormat) -> &'static str {
+    if format == ImageFormat::Jpeg {
+        "jpg"
+    } else {
+        "png"
+    }
+}
+
+/// A decoded image as a PNG file's bytes (lossless).
+fn png(image: &DynamicImage, origin: &Path) -> Result<Vec<u8>, PipelineError> {
+    let mut png = Vec::new();
+    image
+        .write_to(&mut std::io::Cursor::new(&mut png), ImageFormat::Png)
+        .map_err(|e| PipelineError::BadImage { path: origin.to_owned(), reason: e.to_string() })?;
+    Ok(png)
 }
 
 fn write_atomically(path: &Path, bytes: &[u8]) -> Result<(), PipelineError> {
@@ -379,8 +390,7 @@ impl Ingested {
 /// The file of the `index`-th frame (counting every frame, kept or not) of a visit: the name
 /// `revisit synth` gives its images, so that a synthetic survey's truth names a bag's keyframes.
 pub fn frame_file(visit: &str, index: usize, format: ImageFormat) -> String {
-    let extension = if format == ImageFormat::Jpeg { "jpg" } else { "png" };
-    format!("{visit}_{index:04}.{extension}")
+    format!("{visit}_{index:04}.{}", extension(format))
 }
 
 /// Reads a visit's bag (`spec.dir` is the bag) into folders of keyframes under `out`
@@ -416,7 +426,7 @@ pub fn ingest(
     };
 
     let mut visits: Vec<IngestedVisit> = Vec::new();
-    let mut selector: KeyframeSelector<(usize, FrameImage, PathBuf)> = KeyframeSelector::new(options.keyframes);
+    let mut selector: KeyframeSelector<Keyframe> = KeyframeSelector::new(options.keyframes);
     let mut position_m = None;
     let mut last_frame_ns: Option<u64> = None;
     let mut skipped = Vec::new();
@@ -478,7 +488,7 @@ pub fn ingest(
         let Some(visit) = visits.last_mut() else { continue };
         let index = visit.frames;
         visit.frames += 1;
-        let kept = selector.offer((index, frame.image, origin), time_ns, position_m, &image);
+        let kept = selector.offer(Keyframe { index, source: frame.image, origin }, time_ns, position_m, &image);
         for (kept, _) in kept {
             write_keyframe(visit, kept)?;
             progress.advance();
@@ -497,23 +507,24 @@ pub fn ingest(
     Ok(ingested)
 }
 
-/// Writes a kept frame, `(index in the visit, image, origin)`, into its visit's folder:
-/// compressed frames as their own file, raw ones as PNG.
-fn write_keyframe(
-    visit: &mut IngestedVisit,
-    (index, image, origin): (usize, FrameImage, PathBuf),
-) -> Result<(), PipelineError> {
-    let (format, bytes) = match image {
+/// A frame waiting for the keyframe decision: its index in the visit and the image as it came
+/// (decoded again only if kept, so that a pending frame holds no pixels twice).
+struct Keyframe {
+    index: usize,
+    source: FrameImage,
+    origin: PathBuf,
+}
+
+/// Writes a kept frame into its visit's folder: compressed frames as their own file, raw ones as
+/// PNG.
+fn write_keyframe(visit: &mut IngestedVisit, keyframe: Keyframe) -> Result<(), PipelineError> {
+    let (format, bytes) = match keyframe.source {
         FrameImage::File { bytes, format } => (format, bytes),
         FrameImage::Raw(message) => {
-            let mut png = Vec::new();
-            images::from_raw(&message, &origin)?
-                .write_to(&mut std::io::Cursor::new(&mut png), ImageFormat::Png)
-                .map_err(|e| PipelineError::BadImage { path: origin.clone(), reason: e.to_string() })?;
-            (ImageFormat::Png, png)
+            (ImageFormat::Png, png(&images::from_raw(&message, &keyframe.origin)?, &keyframe.origin)?)
         }
     };
-    write_atomically(&visit.dir.join(frame_file(&visit.name, index, format)), &bytes)?;
+    write_atomically(&visit.dir.join(frame_file(&visit.name, keyframe.index, format)), &bytes)?;
     visit.keyframes += 1;
     Ok(())
 }
