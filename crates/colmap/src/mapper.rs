@@ -90,7 +90,9 @@ pub struct MapperOptions {
     pub engine: Engine,
     /// Seed of COLMAP's random choices. Default 0.
     pub seed: u64,
-    /// Threads; -1 = all cores. Default -1.
+    /// Threads; -1 = all cores. Default 1: with more, COLMAP's bundle
+    /// adjustment sums in a varying order, so the same inputs give poses that
+    /// differ in their last digits from run to run.
     pub threads: i32,
     /// Smallest model COLMAP keeps, in images. Default 10 (COLMAP's).
     pub min_model_size: usize,
@@ -98,7 +100,7 @@ pub struct MapperOptions {
 
 impl Default for MapperOptions {
     fn default() -> Self {
-        Self { engine: Engine::Incremental, seed: 0, threads: -1, min_model_size: 10 }
+        Self { engine: Engine::Incremental, seed: 0, threads: 1, min_model_size: 10 }
     }
 }
 

@@ -157,6 +157,10 @@ pub struct OptionArgs {
     /// The COLMAP mapper.
     #[arg(long, value_enum, default_value = "incremental")]
     mapper: MapperArg,
+    /// COLMAP's threads; -1 = all cores. More threads map faster, but the
+    /// poses then differ in their last digits from run to run.
+    #[arg(long, default_value_t = 1, value_name = "N", allow_negative_numbers = true)]
+    mapper_threads: i32,
     /// Seed of every random choice (RANSAC, COLMAP).
     #[arg(long, default_value_t = 0)]
     seed: u64,
@@ -198,6 +202,7 @@ impl OptionArgs {
             MapperArg::Incremental => Engine::Incremental,
             MapperArg::Global => Engine::Global,
         };
+        options.mapper.threads = self.mapper_threads;
         options.ply_colors = match self.ply_colors {
             PlyColorsArg::Rgb => PlyColors::Rgb,
             PlyColorsArg::Session => PlyColors::BySession,
