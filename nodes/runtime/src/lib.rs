@@ -1,0 +1,39 @@
+//! The runtime every Revisit ROS 2 node shares, over `ros2-client` (RustDDS) on tokio.
+//!
+//! It fills what `ros2-client` leaves out: the domain from `ROS_DOMAIN_ID`; `--ros-args` as ROS
+//! users type them (`-p`, `--params-file`, `-r`, `__ns`, `__node`) with relative names resolved in
+//! the node's namespace; `use_sim_time` driven by `rosgraph_msgs/Clock` on `/clock`; QoS per topic
+//! from ROS's `qos_overrides.TOPIC.publisher|subscription.*` parameters; `/diagnostics` once a
+//! second per stage; logging to the terminal and `/rosout`; SIGINT and SIGTERM as a stop request
+//! the node's loop selects on. Messages are `revisit-msgs` types; tools that meet types at run
+//! time publish and read raw CDR.
+
+mod args;
+mod names;
+mod node;
+mod params;
+mod raw;
+mod stats;
+
+pub use args::{read_params_file, ParameterSource, Remap, RosArgs};
+pub use names::Names;
+pub use node::{Node, RawPublisher, RawSubscription, LATCHED, RELIABLE, SENSOR_DATA};
+pub use params::{Endpoint, Parameters};
+pub use raw::{RawAdapter, RawCdr};
+pub use ros2_client::log::LogLevel;
+pub use ros2_client::{Publisher, QosProfile, Subscription};
+pub use stats::Stage;
+
+/// What can go wrong starting or running a node; each names what is at fault.
+#[derive(Debug, thiserror::Error)]
+pub enum NodeError {
+    /// A command-line argument, name or environment variable.
+    #[error("{0}")]
+    Args(String),
+    /// A parameter's value.
+    #[error("parameter {name}: {reason}")]
+    Parameter { name: String, reason: String },
+    /// DDS (RustDDS) refused.
+    #[error("DDS: {0}")]
+    Dds(String),
+}

@@ -1,0 +1,316 @@
+//! A running node: ros2-client's node with what it leaves out filled in.
+
+use std::sync::atomic::{AtomicBool, AtomicI64, Ordering};
+use std::sync::{Arc, Mutex};
+use std::time::{Duration, Instant};
+
+use futures::StreamExt;
+use revisit_msgs::builtin_interfaces::Time;
+use revisit_msgs::diagnostic_msgs::{DiagnosticArray, DiagnosticStatus, KeyValue};
+use revisit_msgs::rosgraph_msgs::Clock;
+use revisit_msgs::std_msgs::Header;
+use revisit_msgs::Message;
+use ros2_client::dds::rustdds::{self, no_key};
+use ros2_client::log::LogLevel;
+use ros2_client::qos::{Durability, History, Reliability, WhenFull};
+use ros2_client::{
+    Context, ContextOptions, MessageTypeName, Name, NodeName, NodeOptions, Publisher, QosProfile, RosoutRaw,
+    Subscription,
+};
+use tokio::sync::watch;
+
+use crate::names::Names;
+use crate::params::{Endpoint, Parameters};
+use crate::raw::{RawAdapter, RawCdr};
+use crate::stats::{Stage, StageStats};
+use crate::{NodeError, RosArgs};
+
+/// Reliable, keep the last 10: ROS 2's default.
+pub const RELIABLE: QosProfile = QosProfile::publisher_default().history(History::KeepLast { depth: 10 });
+/// Best effort, keep the last 5: ROS 2's sensor-data profile.
+pub const SENSOR_DATA: QosProfile = QosProfile::subscription_default().history(History::KeepLast { depth: 5 });
+/// Reliable and transient-local, keep the last 1: a late subscriber (Foxglove, RViz) gets the
+/// latest value.
+pub const LATCHED: QosProfile = QosProfile::publisher_default()
+    .durability(Durability::TransientLocal)
+    .reliability(Reliability::Reliable { when_full: WhenFull::DEFAULT });
+
+/// A raw DDS writer for a type met at run time.
+pub type RawPublisher = no_key::DataWriter<RawCdr, RawAdapter>;
+/// A raw DDS reader for a type met at run time.
+pub type RawSubscription = no_key::SimpleDataReader<RawCdr, RawAdapter>;
+
+/// One node in a DDS domain. Start it inside a tokio runtime: its background work (ros2-client's
+/// spinner, `/clock`, `/diagnostics`, the signal handler) runs as tasks there.
+pub struct Node {
+    context: Context,
+    ros: ros2_client::Node,
+    names: Names,
+    parameters: Parameters,
+    sim_time_ns: Option<Arc<AtomicI64>>,
+    stages: Arc<Mutex<Vec<Arc<StageStats>>>>,
+    stop: watch::Receiver<bool>,
+    raw_publisher: Option<rustdds::Publisher>,
+    raw_subscriber: Option<rustdds::Subscriber>,
+}
+
+impl Node {
+    /// Starts node `default_name` (or what `-r __node:=` says) in the domain `ROS_DOMAIN_ID` names.
+    pub fn start(default_name: &str, args: &RosArgs) -> Result<Node, NodeError> {
+        let domain = domain_id()?;
+        let name = args.node_name.as_deref().unwrap_or(default_name);
+        let names = Names::new(args.namespace.as_deref().unwrap_or("/"), name, &args.remaps)?;
+        let parameters = Parameters::from_args(args, names.namespace(), names.name())?;
+        let use_sim_time = parameters.get("use_sim_time", false)?;
+
+        let context = Context::with_options(ContextOptions::new().domain_id(domain)).map_err(dds)?;
+        // ros2-client's own sim time listens for the wrong type, so `use_sim_time` stays ours.
+        let mut options = NodeOptions::new().enable_rosout(true).allow_undeclared_parameters(true);
+        for (name, value) in parameters.ros_values().filter(|(n, _)| *n != "use_sim_time") {
+            options = options.declare_parameter(name, value);
+        }
+        let node_name = NodeName::new(names.namespace(), names.name()).map_err(|e| NodeError::Args(e.to_string()))?;
+        let mut ros = context.new_node(node_name, options).map_err(dds)?;
+        let spinner = ros.spinner().map_err(dds)?;
+        tokio::spawn(spinner.spin());
+
+        let (stop_sender, stop) = watch::channel(false);
+        tokio::spawn(async move {
+            wait_for_signal().await;
+            let _ = stop_sender.send(true);
+        });
+
+        let mut node = Node {
+            context,
+            ros,
+            names,
+            parameters,
+            sim_time_ns: None,
+            stages: Arc::default(),
+            stop,
+            raw_publisher: None,
+            raw_subscriber: None,
+        };
+        if use_sim_time {
+            node.follow_clock()?;
+        }
+        node.publish_diagnostics()?;
+        Ok(node)
+    }
+
+    /// The node's name (`/namespace/name`).
+    pub fn full_name(&self) -> String {
+        self.names.full_name()
+    }
+
+    pub fn names(&self) -> &Names {
+        &self.names
+    }
+
+    pub fn parameters(&self) -> &Parameters {
+        &self.parameters
+    }
+
+    /// The DDS domain the node is in.
+    pub fn domain_id(&self) -> u16 {
+        self.context.domain_id()
+    }
+
+    /// The parameter `name`, or `default`; a wrong type is an error naming it.
+    pub fn param<T: serde::de::DeserializeOwned>(&self, name: &str, default: T) -> Result<T, NodeError> {
+        self.parameters.get(name, default)
+    }
+
+    /// A publisher of `M` on `topic` (resolved and remapped), QoS `default` unless
+    /// `qos_overrides.TOPIC.publisher.*` say otherwise.
+    pub fn publisher<M: Message>(&mut self, topic: &str, default: QosProfile) -> Result<Publisher<M>, NodeError> {
+        let (topic, qos) = self.topic(topic, M::DEFINITION.name, Endpoint::Publisher, default)?;
+        self.ros.create_publisher(&topic, Some(qos)).map_err(dds)
+    }
+
+    /// A subscription to `M` on `topic`, QoS as for [`Node::publisher`] with `.subscription.`.
+    pub fn subscription<M: Message>(&mut self, topic: &str, default: QosProfile) -> Result<Subscription<M>, NodeError> {
+        let (topic, qos) = self.topic(topic, M::DEFINITION.name, Endpoint::Subscription, default)?;
+        self.ros.create_subscription(&topic, Some(qos)).map_err(dds)
+    }
+
+    /// A writer of CDR bytes of type `type_name` (`pkg/msg/Type`) on `topic`.
+    pub fn raw_publisher(&mut self, topic: &str, type_name: &str, default: QosProfile) -> Result<RawPublisher, NodeError> {
+        let (topic, qos) = self.topic(topic, type_name, Endpoint::Publisher, default)?;
+        let qos = rustdds::QosPolicies::from(&qos);
+        let publisher = match &self.raw_publisher {
+            Some(p) => p.clone(),
+            None => {
+                let p = self.context.domain_participant().create_publisher(&qos).map_err(dds)?;
+                self.raw_publisher.insert(p).clone()
+            }
+        };
+        publisher.create_datawriter_no_key::<RawCdr, RawAdapter>(&topic, Some(qos)).map_err(dds)
+    }
+
+    /// A reader of CDR bytes of type `type_name` on `topic`.
+    pub fn raw_subscription(&mut self, topic: &str, type_name: &str, default: QosProfile) -> Result<RawSubscription, NodeError> {
+        let (topic, qos) = self.topic(topic, type_name, Endpoint::Subscription, default)?;
+        let qos = rustdds::QosPolicies::from(&qos);
+        let subscriber = match &self.raw_subscriber {
+            Some(s) => s.clone(),
+            None => {
+                let s = self.context.domain_participant().create_subscriber(&qos).map_err(dds)?;
+                self.raw_subscriber.insert(s).clone()
+            }
+        };
+        subscriber.create_simple_datareader_no_key::<RawCdr, RawAdapter>(&topic, Some(qos)).map_err(dds)
+    }
+
+    fn topic(
+        &self,
+        name: &str,
+        type_name: &str,
+        endpoint: Endpoint,
+        default: QosProfile,
+    ) -> Result<(rustdds::Topic, QosProfile), NodeError> {
+        let resolved = self.names.resolve(name)?;
+        let qos = self.parameters.qos(&resolved, endpoint, default)?;
+        let (package, ty) = match type_name.split('/').collect::<Vec<_>>()[..] {
+            [package, "msg", ty] | [package, ty] => (package, ty),
+            _ => return Err(NodeError::Args(format!("{type_name:?} is not a message type name (pkg/msg/Type)"))),
+        };
+        let ros_name = Name::parse(&resolved).map_err(|e| NodeError::Args(format!("topic {resolved:?}: {e}")))?;
+        let topic = self.ros.create_topic(&ros_name, MessageTypeName::new(package, ty), &qos).map_err(dds)?;
+        Ok((topic, qos))
+    }
+
+    /// The node's time: the latest `/clock` with `use_sim_time` (zero until one arrives), else
+    /// the system clock.
+    pub fn now(&self) -> Time {
+        match &self.sim_time_ns {
+            Some(ns) => Time::from_nanos(ns.load(Ordering::Relaxed)),
+            None => Time::from_nanos(wall_clock_ns()),
+        }
+    }
+
+    /// A header stamped now.
+    pub fn header(&self, frame_id: &str) -> Header {
+        Header { stamp: self.now(), frame_id: frame_id.to_owned() }
+    }
+
+    /// Counters for one stage of the node's work, published on `/diagnostics`.
+    pub fn stage(&self, name: &str) -> Stage {
+        let stats = Arc::new(StageStats::new(name));
+        self.stages.lock().unwrap_or_else(|e| e.into_inner()).push(Arc::clone(&stats));
+        Stage(stats)
+    }
+
+    /// Resolves once SIGINT or SIGTERM arrived.
+    pub fn stopped(&self) -> impl std::future::Future<Output = ()> + Send + 'static {
+        let mut stop = self.stop.clone();
+        async move {
+            let _ = stop.wait_for(|stop| *stop).await;
+        }
+    }
+
+    /// Whether SIGINT or SIGTERM arrived.
+    pub fn stopping(&self) -> bool {
+        *self.stop.borrow()
+    }
+
+    /// Logs to the terminal and `/rosout`.
+    pub fn log(&self, level: LogLevel, message: &str) {
+        let name = self.names.full_name();
+        match level {
+            LogLevel::Fatal | LogLevel::Error => tracing::error!("[{name}] {message}"),
+            LogLevel::Warn => tracing::warn!("[{name}] {message}"),
+            LogLevel::Info => tracing::info!("[{name}] {message}"),
+            LogLevel::Debug => tracing::debug!("[{name}] {message}"),
+        }
+        let stamp = ros2_client::builtin_interfaces::Time::from_nanos(wall_clock_ns());
+        self.ros.rosout_raw(stamp, level, self.names.name(), message, file!(), "", line!());
+    }
+
+    fn follow_clock(&mut self) -> Result<(), NodeError> {
+        let clock = self.subscription::<Clock>("/clock", QosProfile::subscription_default())?;
+        let now = Arc::new(AtomicI64::new(0));
+        self.sim_time_ns = Some(Arc::clone(&now));
+        tokio::spawn(async move {
+            let mut stream = std::pin::pin!(clock.async_stream());
+            while let Some(message) = stream.next().await {
+                if let Ok((message, _)) = message {
+                    now.store(message.clock.as_nanos(), Ordering::Relaxed);
+                }
+            }
+        });
+        Ok(())
+    }
+
+    fn publish_diagnostics(&mut self) -> Result<(), NodeError> {
+        let publisher = self.publisher::<DiagnosticArray>("/diagnostics", RELIABLE)?;
+        let stages = Arc::clone(&self.stages);
+        let name = self.names.full_name();
+        let hardware_id = std::fs::read_to_string("/etc/hostname").unwrap_or_default().trim().to_owned();
+        let sim_time = self.sim_time_ns.clone();
+        let stopped = AtomicBool::new(false);
+        tokio::spawn(async move {
+            let mut tick = tokio::time::interval(Duration::from_secs(1));
+            let mut last = Instant::now();
+            while !stopped.load(Ordering::Relaxed) {
+                tick.tick().await;
+                let seconds = last.elapsed().as_secs_f64();
+                last = Instant::now();
+                let status: Vec<DiagnosticStatus> = {
+                    let stages = stages.lock().unwrap_or_else(|e| e.into_inner());
+                    stages.iter().map(|s| s.status(&name, &hardware_id, seconds)).collect()
+                };
+                if status.is_empty() {
+                    continue;
+                }
+                let stamp = match &sim_time {
+                    Some(ns) => Time::from_nanos(ns.load(Ordering::Relaxed)),
+                    None => Time::from_nanos(wall_clock_ns()),
+                };
+                let message = DiagnosticArray { header: Header { stamp, frame_id: String::new() }, status };
+                if publisher.async_publish(message).await.is_err() {
+                    stopped.store(true, Ordering::Relaxed);
+                }
+            }
+        });
+        Ok(())
+    }
+}
+
+/// A diagnostic status's key-value pair.
+pub(crate) fn key_value(key: &str, value: impl ToString) -> KeyValue {
+    KeyValue { key: key.to_owned(), value: value.to_string() }
+}
+
+fn domain_id() -> Result<u16, NodeError> {
+    match std::env::var("ROS_DOMAIN_ID") {
+        Err(_) => Ok(0),
+        Ok(text) if text.trim().is_empty() => Ok(0),
+        Ok(text) => match text.trim().parse::<u16>() {
+            Ok(id) if id <= 232 => Ok(id),
+            _ => Err(NodeError::Args(format!("ROS_DOMAIN_ID={text:?} is not a domain id (0-232)"))),
+        },
+    }
+}
+
+fn wall_clock_ns() -> i64 {
+    std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .map_or(0, |d| i64::try_from(d.as_nanos()).unwrap_or(i64::MAX))
+}
+
+async fn wait_for_signal() {
+    use tokio::signal::unix::{signal, SignalKind};
+    let (Ok(mut interrupt), Ok(mut terminate)) = (signal(SignalKind::interrupt()), signal(SignalKind::terminate()))
+    else {
+        return std::future::pending().await;
+    };
+    tokio::select! {
+        _ = interrupt.recv() => {}
+        _ = terminate.recv() => {}
+    }
+}
+
+fn dds(error: impl std::fmt::Debug) -> NodeError {
+    NodeError::Dds(format!("{error:?}"))
+}
