@@ -12,7 +12,9 @@ pub fn init_logging(verbose: u8) {
         1 => "debug",
         _ => "trace",
     };
-    let filter = EnvFilter::try_from_default_env().unwrap_or_else(|_| EnvFilter::new(default));
+    // RustDDS narrates discovery at info level: only its warnings are worth a user's terminal.
+    let filter = EnvFilter::try_from_default_env()
+        .unwrap_or_else(|_| EnvFilter::new(format!("{default},rustdds=warn,ros2_client=warn,ros2_client::distributions=error")));
     tracing_subscriber::fmt().with_env_filter(filter).with_writer(std::io::stderr).with_target(false).init();
 }
 
@@ -22,6 +24,16 @@ pub fn bar(len: u64, stage: &str) -> ProgressBar {
     let bar = ProgressBar::with_draw_target(Some(len), ProgressDrawTarget::stderr());
     if let Ok(style) = ProgressStyle::with_template("{prefix:>12} [{bar:30}] {pos}/{len} {per_sec} eta {eta} {msg}") {
         bar.set_style(style.progress_chars("=> "));
+    }
+    bar.set_prefix(stage.to_owned());
+    bar
+}
+
+/// A counter of items with no known end, drawn on stderr.
+pub fn spinner(stage: &str) -> ProgressBar {
+    let bar = ProgressBar::with_draw_target(None, ProgressDrawTarget::stderr());
+    if let Ok(style) = ProgressStyle::with_template("{prefix:>12} {spinner} {pos} {per_sec} {msg}") {
+        bar.set_style(style);
     }
     bar.set_prefix(stage.to_owned());
     bar

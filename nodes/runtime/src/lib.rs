@@ -13,13 +13,15 @@ mod names;
 mod node;
 mod params;
 mod raw;
+mod replay;
 mod stats;
 
 pub use args::{read_params_file, ParameterSource, Remap, RosArgs};
 pub use names::Names;
-pub use node::{Node, RawPublisher, RawSubscription, LATCHED, RELIABLE, SENSOR_DATA};
+pub use node::{DiscoveredTopic, Node, RawPublisher, RawSubscription, LATCHED, RELIABLE, SENSOR_DATA};
 pub use params::{Endpoint, Parameters};
 pub use raw::{RawAdapter, RawCdr};
+pub use replay::{play, record, PlayOptions, Played, RecordOptions, ReplayError};
 pub use ros2_client::log::LogLevel;
 pub use ros2_client::{Publisher, QosProfile, Subscription};
 pub use stats::Stage;

@@ -1,6 +1,6 @@
 //! A running node: ros2-client's node with what it leaves out filled in.
 
-use std::sync::atomic::{AtomicBool, AtomicI64, Ordering};
+use std::sync::atomic::{AtomicI64, Ordering};
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
@@ -18,6 +18,7 @@ use ros2_client::{
     Subscription,
 };
 use tokio::sync::watch;
+use tokio::task::JoinHandle;
 
 use crate::names::Names;
 use crate::params::{Endpoint, Parameters};
@@ -40,18 +41,33 @@ pub type RawPublisher = no_key::DataWriter<RawCdr, RawAdapter>;
 /// A raw DDS reader for a type met at run time.
 pub type RawSubscription = no_key::SimpleDataReader<RawCdr, RawAdapter>;
 
+/// A topic announced in the domain.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct DiscoveredTopic {
+    /// The ROS name, e.g. `/camera/image`.
+    pub name: String,
+    /// The ROS type name, e.g. `sensor_msgs/msg/Image`.
+    pub type_name: String,
+    /// Offered reliable.
+    pub reliable: bool,
+}
+
 /// One node in a DDS domain. Start it inside a tokio runtime: its background work (ros2-client's
 /// spinner, `/clock`, `/diagnostics`, the signal handler) runs as tasks there.
+/// End it with [`Node::shutdown`], which stops that work before DDS goes away.
 pub struct Node {
-    context: Context,
-    ros: ros2_client::Node,
     names: Names,
     parameters: Parameters,
     sim_time_ns: Option<Arc<AtomicI64>>,
     stages: Arc<Mutex<Vec<Arc<StageStats>>>>,
     stop: watch::Receiver<bool>,
+    tasks: Vec<JoinHandle<()>>,
+    spinner: Option<JoinHandle<()>>,
     raw_publisher: Option<rustdds::Publisher>,
     raw_subscriber: Option<rustdds::Subscriber>,
+    // Dropped last: DDS entities must go before their participant.
+    ros: ros2_client::Node,
+    context: Context,
 }
 
 impl Node {
@@ -72,10 +88,14 @@ impl Node {
         let node_name = NodeName::new(names.namespace(), names.name()).map_err(|e| NodeError::Args(e.to_string()))?;
         let mut ros = context.new_node(node_name, options).map_err(dds)?;
         let spinner = ros.spinner().map_err(dds)?;
-        tokio::spawn(spinner.spin());
+        let spinner = tokio::spawn(async move {
+            if let Err(error) = spinner.spin().await {
+                tracing::warn!("ros2-client's spinner stopped: {error:?}");
+            }
+        });
 
         let (stop_sender, stop) = watch::channel(false);
-        tokio::spawn(async move {
+        let signals = tokio::spawn(async move {
             wait_for_signal().await;
             let _ = stop_sender.send(true);
         });
@@ -88,6 +108,8 @@ impl Node {
             sim_time_ns: None,
             stages: Arc::default(),
             stop,
+            tasks: vec![signals],
+            spinner: Some(spinner),
             raw_publisher: None,
             raw_subscriber: None,
         };
@@ -180,6 +202,51 @@ impl Node {
         Ok((topic, qos))
     }
 
+    /// Stops the node's background work, then leaves the domain (peers are told).
+    pub async fn shutdown(self) {
+        let Node { tasks, spinner, raw_publisher, raw_subscriber, ros, context, .. } = self;
+        for task in tasks {
+            task.abort();
+            let _ = task.await;
+        }
+        drop((raw_publisher, raw_subscriber));
+        // Dropping ros2-client's node tells its spinner to stop.
+        drop(ros);
+        if let Some(spinner) = spinner {
+            if tokio::time::timeout(Duration::from_secs(2), spinner).await.is_err() {
+                tracing::debug!("the spinner did not stop in 2 s");
+            }
+        }
+        drop(context);
+    }
+
+    /// The topics publishers or subscribers in the domain have announced.
+    pub fn discovered_topics(&self) -> Vec<DiscoveredTopic> {
+        let mut topics: Vec<DiscoveredTopic> = self
+            .context
+            .discovered_topics_raw()
+            .into_iter()
+            .filter_map(|t| {
+                let data = t.topic_data;
+                let name = data.name.strip_prefix("rt")?.to_owned();
+                let (package, rest) = data.type_name.split_once("::msg::dds_::")?;
+                let type_name = format!("{package}/msg/{}", rest.strip_suffix('_')?);
+                let reliable = matches!(data.reliability, Some(rustdds::policy::Reliability::Reliable { .. }));
+                Some(DiscoveredTopic { name, type_name, reliable })
+            })
+            .collect();
+        topics.sort_by(|a, b| a.name.cmp(&b.name));
+        topics.dedup_by(|a, b| a.name == b.name);
+        topics
+    }
+
+    /// How many readers in the domain (this process's included) subscribe to `topic` (resolved).
+    pub fn readers_of(&self, topic: &str) -> usize {
+        let dds_name = format!("rt{topic}");
+        let readers = self.context.domain_participant().discovered_readers();
+        readers.iter().filter(|r| r.subscription_topic_data.topic_name == dds_name).count()
+    }
+
     /// The node's time: the latest `/clock` with `use_sim_time` (zero until one arrives), else
     /// the system clock.
     pub fn now(&self) -> Time {
@@ -231,14 +298,14 @@ impl Node {
         let clock = self.subscription::<Clock>("/clock", QosProfile::subscription_default())?;
         let now = Arc::new(AtomicI64::new(0));
         self.sim_time_ns = Some(Arc::clone(&now));
-        tokio::spawn(async move {
+        self.tasks.push(tokio::spawn(async move {
             let mut stream = std::pin::pin!(clock.async_stream());
             while let Some(message) = stream.next().await {
                 if let Ok((message, _)) = message {
                     now.store(message.clock.as_nanos(), Ordering::Relaxed);
                 }
             }
-        });
+        }));
         Ok(())
     }
 
@@ -248,11 +315,10 @@ impl Node {
         let name = self.names.full_name();
         let hardware_id = std::fs::read_to_string("/etc/hostname").unwrap_or_default().trim().to_owned();
         let sim_time = self.sim_time_ns.clone();
-        let stopped = AtomicBool::new(false);
-        tokio::spawn(async move {
+        self.tasks.push(tokio::spawn(async move {
             let mut tick = tokio::time::interval(Duration::from_secs(1));
             let mut last = Instant::now();
-            while !stopped.load(Ordering::Relaxed) {
+            loop {
                 tick.tick().await;
                 let seconds = last.elapsed().as_secs_f64();
                 last = Instant::now();
@@ -269,10 +335,10 @@ impl Node {
                 };
                 let message = DiagnosticArray { header: Header { stamp, frame_id: String::new() }, status };
                 if publisher.async_publish(message).await.is_err() {
-                    stopped.store(true, Ordering::Relaxed);
+                    break;
                 }
             }
-        });
+        }));
         Ok(())
     }
 }
@@ -311,6 +377,6 @@ async fn wait_for_signal() {
     }
 }
 
-fn dds(error: impl std::fmt::Debug) -> NodeError {
+pub(crate) fn dds(error: impl std::fmt::Debug) -> NodeError {
     NodeError::Dds(format!("{error:?}"))
 }

@@ -2,10 +2,12 @@
 //! pack image folders into a bag.
 
 use std::path::PathBuf;
+use std::time::Duration;
 
 use anyhow::Result;
 
 use revisit_bag::Bag;
+use revisit_node::{Node, PlayOptions, RecordOptions, RosArgs};
 use revisit_pipeline::{
     bags::{self, PackOptions},
     ingest::{self, SessionSpec},
@@ -52,6 +54,50 @@ pub enum Command {
         #[arg(long)]
         compressed: bool,
     },
+    /// Publish a bag's topics over DDS (ROS 2) at the bag's pace, in the domain ROS_DOMAIN_ID
+    /// names, like `ros2 bag play`. Ctrl-C stops.
+    Play {
+        /// A bag folder (with metadata.yaml) or a single .mcap or .db3 file.
+        bag: PathBuf,
+        /// Speed against the bag's pace; 0: as fast as the subscribers take the messages.
+        #[arg(long, default_value_t = 1.0)]
+        rate: f64,
+        /// Also publish /clock (rosgraph_msgs/Clock) with the bag's time, for nodes run with
+        /// use_sim_time:=true.
+        #[arg(long)]
+        clock: bool,
+        /// Only this topic (repeatable).
+        #[arg(long = "topic", value_name = "TOPIC")]
+        topics: Vec<String>,
+        /// Wait until every topic has a subscriber before starting.
+        #[arg(long)]
+        wait_for_subscribers: bool,
+        /// Seconds to wait before the first message.
+        #[arg(long, default_value_t = 0.0)]
+        delay: f64,
+        /// ROS arguments, e.g. --ros-args -r /camera/image_raw:=/image -r __ns:=/auv.
+        #[arg(long = "ros-args", num_args = 0.., allow_hyphen_values = true, value_name = "ARG")]
+        ros_args: Vec<String>,
+    },
+    /// Record topics in the domain to a rosbag2 mcap bag, like `ros2 bag record`. Each topic is
+    /// subscribed once a publisher of it appears. Ctrl-C stops and finishes the bag.
+    Record {
+        /// Topics to record.
+        #[arg(required = true)]
+        topics: Vec<String>,
+        /// The bag folder to create (it must not exist).
+        #[arg(long)]
+        out: PathBuf,
+        /// Stop after this many seconds.
+        #[arg(long, value_name = "SECONDS")]
+        duration: Option<f64>,
+        /// Stop after this many messages.
+        #[arg(long, value_name = "N")]
+        max_messages: Option<u64>,
+        /// ROS arguments, e.g. --ros-args -r __ns:=/auv -p use_sim_time:=true.
+        #[arg(long = "ros-args", num_args = 0.., allow_hyphen_values = true, value_name = "ARG")]
+        ros_args: Vec<String>,
+    },
 }
 
 pub fn run(command: Command) -> Result<()> {
@@ -81,7 +127,50 @@ pub fn run(command: Command) -> Result<()> {
             println!("wrote {} messages to {}", written.messages, written.dir.display());
             Ok(())
         }
+        Command::Play { bag, rate, clock, topics, wait_for_subscribers, delay, ros_args } => {
+            let bag = Bag::open(&bag)?;
+            let options = PlayOptions { rate, clock, topics, wait_for_subscribers, delay_s: delay };
+            let total = bag.info()?.message_count();
+            let played = in_node("revisit_bag_player", &ros_args, async |node| {
+                let bar = crate::progress::bar(total, "play");
+                let played = revisit_node::play(node, &bag, &options, &|n| bar.set_position(n)).await;
+                bar.finish_and_clear();
+                Ok(played?)
+            })?;
+            println!(
+                "published {} messages in {:.1} s ({} skipped)",
+                played.published, played.seconds, played.skipped
+            );
+            Ok(())
+        }
+        Command::Record { topics, out, duration, max_messages, ros_args } => {
+            if duration.is_some_and(|d| !(d > 0.0 && d.is_finite())) {
+                anyhow::bail!("--duration must be a positive number of seconds");
+            }
+            let options =
+                RecordOptions { topics, duration: duration.map(Duration::from_secs_f64), max_messages };
+            let written = in_node("revisit_bag_recorder", &ros_args, async |node| {
+                let bar = crate::progress::spinner("record");
+                let written = revisit_node::record(node, &out, &options, &|n| bar.set_position(n)).await;
+                bar.finish_and_clear();
+                Ok(written?)
+            })?;
+            println!("recorded {} messages to {}", written.messages, written.dir.display());
+            Ok(())
+        }
     }
+}
+
+/// Runs `work` with a node named `name` (ROS arguments applied) on a tokio runtime.
+fn in_node<T>(name: &str, ros_args: &[String], work: impl AsyncFnOnce(&mut Node) -> Result<T>) -> Result<T> {
+    let args = RosArgs::parse(ros_args)?;
+    let runtime = tokio::runtime::Runtime::new()?;
+    runtime.block_on(async {
+        let mut node = Node::start(name, &args)?;
+        let result = work(&mut node).await;
+        node.shutdown().await;
+        result
+    })
 }
 
 fn info(bag: &Bag) -> Result<()> {
