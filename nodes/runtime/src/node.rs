@@ -14,7 +14,7 @@ use ros2_client::dds::rustdds::{self, no_key};
 use ros2_client::log::LogLevel;
 use ros2_client::qos::{Durability, History, Reliability, WhenFull};
 use ros2_client::{
-    Context, ContextOptions, MessageTypeName, Name, NodeName, NodeOptions, Publisher, QosProfile, RosoutRaw,
+    Context, MessageTypeName, Name, NodeName, NodeOptions, Publisher, QosProfile, RosoutRaw,
     Subscription,
 };
 use tokio::sync::watch;
@@ -71,7 +71,8 @@ pub struct Node {
 }
 
 impl Node {
-    /// Starts node `default_name` (or what `-r __node:=` says) in the domain `ROS_DOMAIN_ID` names.
+    /// Starts node `default_name` (or what `-r __node:=` says) in the domain `ROS_DOMAIN_ID` names,
+    /// on loopback only when `ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST` or `ROS_LOCALHOST_ONLY=1`.
     pub fn start(default_name: &str, args: &RosArgs) -> Result<Node, NodeError> {
         let domain = domain_id()?;
         let name = args.node_name.as_deref().unwrap_or(default_name);
@@ -79,7 +80,11 @@ impl Node {
         let parameters = Parameters::from_args(args, names.namespace(), names.name())?;
         let use_sim_time = parameters.get("use_sim_time", false)?;
 
-        let context = Context::with_options(ContextOptions::new().domain_id(domain)).map_err(dds)?;
+        let mut participant = rustdds::DomainParticipantBuilder::new(domain);
+        if localhost_only() {
+            participant = participant.with_only_networks([std::net::Ipv4Addr::LOCALHOST]);
+        }
+        let context = Context::from_domain_participant(participant.build().map_err(dds)?).map_err(dds)?;
         // ros2-client's own sim time listens for the wrong type, so `use_sim_time` stays ours.
         let mut options = NodeOptions::new().enable_rosout(true).allow_undeclared_parameters(true);
         for (name, value) in parameters.ros_values().filter(|(n, _)| *n != "use_sim_time") {
@@ -357,6 +362,13 @@ fn domain_id() -> Result<u16, NodeError> {
             _ => Err(NodeError::Args(format!("ROS_DOMAIN_ID={text:?} is not a domain id (0-232)"))),
         },
     }
+}
+
+/// ROS's switches for keeping DDS on this machine: `ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST`
+/// (Jazzy) or `ROS_LOCALHOST_ONLY=1` (Humble).
+fn localhost_only() -> bool {
+    std::env::var("ROS_AUTOMATIC_DISCOVERY_RANGE").is_ok_and(|v| v.eq_ignore_ascii_case("localhost"))
+        || std::env::var("ROS_LOCALHOST_ONLY").is_ok_and(|v| v.trim() == "1")
 }
 
 fn wall_clock_ns() -> i64 {
