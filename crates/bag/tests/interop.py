@@ -10,6 +10,11 @@ cyclonedds OUT.json EXPECTED.json
 write DIR EXPECTED.json   write EXPECTED's messages with independent encoders: DIR/rosbags_db3 (sqlite3)
                           and DIR/rosbags_mcap (rosbags, with its own definitions of ROS's types), and
                           DIR/mcap_ros2.mcap (mcap-ros2-support).
+listen OUT.json SPEC.json a Cyclone DDS peer on loopback in SPEC's domain: subscribe SPEC's topics
+                          (topic -> {type, count}), print "ready", and write what arrives as OUT.json
+                          (topic -> values) once every count is reached or SPEC's timeout passes.
+talk - SPEC.json          a Cyclone DDS peer on loopback: wait for a subscriber of each of SPEC's topics
+                          (topic -> {type, values}), publish the values at SPEC's rate_hz, wait for acks.
 """
 import dataclasses
 import json
@@ -284,7 +289,74 @@ def cyclonedds(out, expected):
     print(f"cyclonedds: {len(expected)} types equal both ways")
 
 
+def dds_participant(spec):
+    """A Cyclone DDS participant that stays on loopback and finds peers there by unicast."""
+    import os
+    os.environ["CYCLONEDDS_URI"] = (
+        "<CycloneDDS><Domain id='any'><General><Interfaces><NetworkInterface address='127.0.0.1'/>"
+        "</Interfaces><AllowMulticast>false</AllowMulticast></General><Discovery>"
+        "<ParticipantIndex>auto</ParticipantIndex><MaxAutoParticipantIndex>60</MaxAutoParticipantIndex>"
+        "<Peers><Peer address='127.0.0.1'/></Peers></Discovery></Domain></CycloneDDS>")
+    from cyclonedds.domain import DomainParticipant
+    return DomainParticipant(spec["domain"])
+
+
+def reliable_qos(depth=1000):
+    from cyclonedds.qos import Policy, Qos
+    from cyclonedds.util import duration
+    return Qos(Policy.Reliability.Reliable(duration(seconds=1)), Policy.History.KeepLast(depth))
+
+
+def listen(out, spec):
+    import time
+
+    from cyclonedds.sub import DataReader
+    from cyclonedds.topic import Topic
+    participant = dds_participant(spec)
+    types = idl_types()
+    readers = {name: DataReader(participant, Topic(participant, "rt" + name, types[entry["type"]]),
+                                qos=reliable_qos())
+               for name, entry in spec["topics"].items()}
+    print("ready", flush=True)
+    got = {name: [] for name in readers}
+    deadline = time.monotonic() + spec.get("timeout", 60)
+    while time.monotonic() < deadline and any(len(got[n]) < e["count"] for n, e in spec["topics"].items()):
+        for name, reader in readers.items():
+            got[name].extend(plain(sample) for sample in reader.take(N=100))
+        time.sleep(0.005)
+    Path(out).write_text(json.dumps(got))
+    print("listen: " + ", ".join(f"{name} {len(values)}" for name, values in got.items()), flush=True)
+
+
+def talk(_, spec):
+    import time
+
+    from cyclonedds.pub import DataWriter
+    from cyclonedds.topic import Topic
+    from cyclonedds.util import duration
+    participant = dds_participant(spec)
+    types = idl_types()
+    writers = {name: DataWriter(participant, Topic(participant, "rt" + name, types[entry["type"]]),
+                                qos=reliable_qos())
+               for name, entry in spec["topics"].items()}
+    deadline = time.monotonic() + spec.get("timeout", 60)
+    while any(not w.get_matched_subscriptions() for w in writers.values()):
+        if time.monotonic() > deadline:
+            raise SystemExit("talk: no subscriber appeared")
+        time.sleep(0.05)
+    time.sleep(1.0)  # the subscriber's side of the match
+    count = max(len(e["values"]) for e in spec["topics"].values())
+    for i in range(count):
+        for name, entry in spec["topics"].items():
+            if i < len(entry["values"]):
+                writers[name].write(idl_value(types[entry["type"]], entry["values"][i]))
+        time.sleep(1.0 / spec.get("rate_hz", 10))
+    for writer in writers.values():
+        writer.wait_for_acks(duration(seconds=10))
+    print(f"talk: {count} messages on each of {len(writers)} topics", flush=True)
+
+
 if __name__ == "__main__":
-    command, path, expected_path = sys.argv[1:]
-    expected = json.loads(Path(expected_path).read_text())
-    {"check": check, "write": write, "cyclonedds": cyclonedds}[command](path, expected)
+    command, path, spec_path = sys.argv[1:]
+    spec = json.loads(Path(spec_path).read_text())
+    {"check": check, "write": write, "cyclonedds": cyclonedds, "listen": listen, "talk": talk}[command](path, spec)

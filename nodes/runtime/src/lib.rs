@@ -18,7 +18,7 @@ mod stats;
 
 pub use args::{read_params_file, ParameterSource, Remap, RosArgs};
 pub use names::Names;
-pub use node::{DiscoveredTopic, Node, RawPublisher, RawSubscription, LATCHED, RELIABLE, SENSOR_DATA};
+pub use node::{DiscoveredTopic, Domain, Node, RawPublisher, RawSubscription, LATCHED, RELIABLE, SENSOR_DATA};
 pub use params::{Endpoint, Parameters};
 pub use raw::{RawAdapter, RawCdr};
 pub use replay::{play, record, PlayOptions, Played, RecordOptions, ReplayError};

@@ -71,17 +71,21 @@ pub struct Node {
 }
 
 impl Node {
-    /// Starts node `default_name` (or what `-r __node:=` says) in the domain `ROS_DOMAIN_ID` names,
-    /// on loopback only when `ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST` or `ROS_LOCALHOST_ONLY=1`.
+    /// Starts node `default_name` (or what `-r __node:=` says) in the domain ROS's variables name
+    /// ([`Domain::from_env`]).
     pub fn start(default_name: &str, args: &RosArgs) -> Result<Node, NodeError> {
-        let domain = domain_id()?;
+        Node::start_in(Domain::from_env()?, default_name, args)
+    }
+
+    /// [`Node::start`] in a given domain (several graphs in one process: tests, `--single-process`).
+    pub fn start_in(domain: Domain, default_name: &str, args: &RosArgs) -> Result<Node, NodeError> {
         let name = args.node_name.as_deref().unwrap_or(default_name);
         let names = Names::new(args.namespace.as_deref().unwrap_or("/"), name, &args.remaps)?;
         let parameters = Parameters::from_args(args, names.namespace(), names.name())?;
         let use_sim_time = parameters.get("use_sim_time", false)?;
 
-        let mut participant = rustdds::DomainParticipantBuilder::new(domain);
-        if localhost_only() {
+        let mut participant = rustdds::DomainParticipantBuilder::new(domain.id);
+        if domain.localhost_only {
             participant = participant.with_only_networks([std::net::Ipv4Addr::LOCALHOST]);
         }
         let context = Context::from_domain_participant(participant.build().map_err(dds)?).map_err(dds)?;
@@ -353,22 +357,29 @@ pub(crate) fn key_value(key: &str, value: impl ToString) -> KeyValue {
     KeyValue { key: key.to_owned(), value: value.to_string() }
 }
 
-fn domain_id() -> Result<u16, NodeError> {
-    match std::env::var("ROS_DOMAIN_ID") {
-        Err(_) => Ok(0),
-        Ok(text) if text.trim().is_empty() => Ok(0),
-        Ok(text) => match text.trim().parse::<u16>() {
-            Ok(id) if id <= 232 => Ok(id),
-            _ => Err(NodeError::Args(format!("ROS_DOMAIN_ID={text:?} is not a domain id (0-232)"))),
-        },
-    }
+/// A DDS domain and whether to stay on this machine.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Domain {
+    pub id: u16,
+    pub localhost_only: bool,
 }
 
-/// ROS's switches for keeping DDS on this machine: `ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST`
-/// (Jazzy) or `ROS_LOCALHOST_ONLY=1` (Humble).
-fn localhost_only() -> bool {
-    std::env::var("ROS_AUTOMATIC_DISCOVERY_RANGE").is_ok_and(|v| v.eq_ignore_ascii_case("localhost"))
-        || std::env::var("ROS_LOCALHOST_ONLY").is_ok_and(|v| v.trim() == "1")
+impl Domain {
+    /// What ROS's variables say: `ROS_DOMAIN_ID` (0 if unset), and loopback only with
+    /// `ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST` (Jazzy) or `ROS_LOCALHOST_ONLY=1` (Humble).
+    pub fn from_env() -> Result<Domain, NodeError> {
+        let id = match std::env::var("ROS_DOMAIN_ID") {
+            Err(_) => 0,
+            Ok(text) if text.trim().is_empty() => 0,
+            Ok(text) => match text.trim().parse::<u16>() {
+                Ok(id) if id <= 232 => id,
+                _ => return Err(NodeError::Args(format!("ROS_DOMAIN_ID={text:?} is not a domain id (0-232)"))),
+            },
+        };
+        let localhost_only = std::env::var("ROS_AUTOMATIC_DISCOVERY_RANGE").is_ok_and(|v| v.eq_ignore_ascii_case("localhost"))
+            || std::env::var("ROS_LOCALHOST_ONLY").is_ok_and(|v| v.trim() == "1");
+        Ok(Domain { id, localhost_only })
+    }
 }
 
 fn wall_clock_ns() -> i64 {
