@@ -177,6 +177,7 @@ pub async fn record(
     let mut pending = wanted.clone();
     let started = Instant::now();
     let mut recorded = 0u64;
+    tracing::info!("waiting for {} to appear; Ctrl-C stops", wanted.join(", "));
     let deadline = options.duration.map(|d| started + d);
     loop {
         if node.stopping() || deadline.is_some_and(|d| Instant::now() >= d) {
@@ -199,6 +200,8 @@ pub async fn record(
                     ),
                 };
                 let reader = node.raw_subscription(&found.name, &found.type_name, qos)?;
+                let reliability = if found.reliable { "reliable" } else { "best effort" };
+                tracing::info!("recording {} ({}, {reliability})", found.name, found.type_name);
                 let id = writer.add_raw_topic(&found.name, known.definition, bag_qos)?;
                 readers.push((id, reader));
                 pending.remove(index);
