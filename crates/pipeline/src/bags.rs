@@ -22,7 +22,7 @@ use serde::{Deserialize, Serialize};
 use crate::{
     images,
     ingest::{SessionImages, SessionSpec},
-    keyframes::{KeyframeOptions, KeyframeSelector},
+    keyframes::{KeyframeOptions, VisitEvent, VisitStream},
     Cancel, PipelineError, Progress,
 };
 
@@ -45,7 +45,39 @@ pub enum FrameImage {
     File { bytes: Vec<u8>, format: ImageFormat },
 }
 
+impl FrameImage {
+    /// As an image file: compressed frames as they came, raw ones as PNG (lossless).
+    pub fn into_file(self, origin: &Path) -> Result<(ImageFormat, Vec<u8>), PipelineError> {
+        match self {
+            FrameImage::File { bytes, format } => Ok((format, bytes)),
+            FrameImage::Raw(message) => Ok((ImageFormat::Png, png(&images::from_raw(&message, origin)?, origin)?)),
+        }
+    }
+}
+
 impl Frame {
+    /// A `sensor_msgs/Image` received at `log_time_ns`.
+    pub fn raw(image: Image, log_time_ns: u64) -> Frame {
+        Frame { log_time_ns, stamp: image.header.stamp, image: FrameImage::Raw(image) }
+    }
+
+    /// A `sensor_msgs/CompressedImage` received at `log_time_ns`: PNG or JPEG, else an error.
+    pub fn compressed(image: CompressedImage, log_time_ns: u64) -> Result<Frame, String> {
+        let format = image::guess_format(&image.data)
+            .ok()
+            .filter(|f| matches!(f, ImageFormat::Png | ImageFormat::Jpeg))
+            .ok_or_else(|| format!("compressed image format {:?} is not jpeg or png", image.format))?;
+        Ok(Frame { log_time_ns, stamp: image.header.stamp, image: FrameImage::File { bytes: image.data, format } })
+    }
+
+    /// When it was taken: the header's stamp, or the log time when the stamp is zero.
+    pub fn time_ns(&self, log_time_ns: u64) -> u64 {
+        match self.stamp.as_nanos() {
+            0 => log_time_ns,
+            stamp => u64::try_from(stamp).unwrap_or(log_time_ns),
+        }
+    }
+
     pub fn decode(&self, origin: &Path) -> Result<DynamicImage, PipelineError> {
         match &self.image {
             FrameImage::Raw(message) => images::from_raw(message, origin),
@@ -96,21 +128,11 @@ fn frame_of(message: &RawMessage) -> Result<Frame, String> {
     let type_name = message.topic.type_name.as_str();
     if type_name == Image::DEFINITION.name {
         let image: Image = revisit_msgs::decode(&message.data).map_err(|e| e.to_string())?;
-        let stamp = image.header.stamp;
-        return Ok(Frame { log_time_ns: message.log_time_ns, stamp, image: FrameImage::Raw(image) });
+        return Ok(Frame::raw(image, message.log_time_ns));
     }
     if type_name == CompressedImage::DEFINITION.name {
         let image: CompressedImage = revisit_msgs::decode(&message.data).map_err(|e| e.to_string())?;
-        let format = image::guess_format(&image.data)
-            .ok()
-            .filter(|f| matches!(f, ImageFormat::Png | ImageFormat::Jpeg))
-            .ok_or_else(|| format!("compressed image format {:?} is not jpeg or png", image.format))?;
-        let stamp = image.header.stamp;
-        return Ok(Frame {
-            log_time_ns: message.log_time_ns,
-            stamp,
-            image: FrameImage::File { bytes: image.data, format },
-        });
+        return Frame::compressed(image, message.log_time_ns);
     }
     Err(format!("type {type_name} is not sensor_msgs/msg/Image or sensor_msgs/msg/CompressedImage"))
 }
@@ -426,9 +448,7 @@ pub fn ingest(
     };
 
     let mut visits: Vec<IngestedVisit> = Vec::new();
-    let mut selector: KeyframeSelector<Keyframe> = KeyframeSelector::new(options.keyframes);
-    let mut position_m = None;
-    let mut last_frame_ns: Option<u64> = None;
+    let mut stream: VisitStream<Keyframe> = VisitStream::new(&spec.name, options.split_gap_s, options.keyframes);
     let mut skipped = Vec::new();
     progress.start(&format!("keyframes {}", spec.name), 0);
     for message in bag.messages() {
@@ -444,7 +464,7 @@ pub fn ingest(
         if message.topic.type_name == Odometry::DEFINITION.name {
             if let Ok(odometry) = revisit_msgs::decode::<Odometry>(&message.data) {
                 let p = odometry.pose.pose.position;
-                position_m = Some([p.x, p.y, p.z]);
+                stream.position([p.x, p.y, p.z]);
             }
             continue;
         }
@@ -462,41 +482,11 @@ pub fn ingest(
                 continue;
             }
         };
-        let time_ns = match frame.stamp.as_nanos() {
-            0 => message.log_time_ns,
-            stamp => u64::try_from(stamp).unwrap_or(message.log_time_ns),
-        };
-        let gap = options
-            .split_gap_s
-            .zip(last_frame_ns)
-            .is_some_and(|(gap_s, last)| time_ns.saturating_sub(last) as f64 * 1e-9 > gap_s);
-        last_frame_ns = Some(time_ns);
-        if visits.is_empty() || gap {
-            if let (Some(visit), Some((kept, _))) = (visits.last_mut(), selector.finish()) {
-                write_keyframe(visit, kept)?;
-                progress.advance();
-            }
-            let name = match options.split_gap_s {
-                Some(_) => format!("{}-{}", spec.name, visits.len() + 1),
-                None => spec.name.clone(),
-            };
-            let dir = out.join(&name);
-            fs::create_dir_all(&dir).map_err(|source| PipelineError::Io { path: dir.clone(), source })?;
-            visits.push(IngestedVisit { name, dir, frames: 0, keyframes: 0 });
-            selector = KeyframeSelector::new(options.keyframes);
-        }
-        let Some(visit) = visits.last_mut() else { continue };
-        let index = visit.frames;
-        visit.frames += 1;
-        let kept = selector.offer(Keyframe { index, source: frame.image, origin }, time_ns, position_m, &image);
-        for (kept, _) in kept {
-            write_keyframe(visit, kept)?;
-            progress.advance();
-        }
+        let time_ns = frame.time_ns(message.log_time_ns);
+        let events = stream.frame(Keyframe { source: frame.image, origin }, time_ns, &image);
+        apply(events, &mut visits, out, progress)?;
     }
-    if let (Some(visit), Some((kept, _))) = (visits.last_mut(), selector.finish()) {
-        write_keyframe(visit, kept)?;
-    }
+    apply(stream.end(), &mut visits, out, progress)?;
     progress.finish();
     if visits.is_empty() {
         return Err(no_frames(&bag, &topic));
@@ -507,24 +497,48 @@ pub fn ingest(
     Ok(ingested)
 }
 
-/// A frame waiting for the keyframe decision: its index in the visit and the image as it came
-/// (decoded again only if kept, so that a pending frame holds no pixels twice).
+/// A frame waiting for the keyframe decision: the image as it came (decoded again only if kept,
+/// so that a pending frame holds no pixels twice).
 struct Keyframe {
-    index: usize,
     source: FrameImage,
     origin: PathBuf,
 }
 
+/// Carries out a visit stream's decisions: a folder per visit, a file per keyframe.
+fn apply(
+    events: Vec<VisitEvent<Keyframe>>,
+    visits: &mut Vec<IngestedVisit>,
+    out: &Path,
+    progress: &dyn Progress,
+) -> Result<(), PipelineError> {
+    for event in events {
+        match event {
+            VisitEvent::Started { visit } => {
+                let dir = out.join(&visit);
+                fs::create_dir_all(&dir).map_err(|source| PipelineError::Io { path: dir.clone(), source })?;
+                visits.push(IngestedVisit { name: visit, dir, frames: 0, keyframes: 0 });
+            }
+            VisitEvent::Keyframe { index, frame, .. } => {
+                if let Some(visit) = visits.last_mut() {
+                    write_keyframe(visit, index, frame)?;
+                    progress.advance();
+                }
+            }
+            VisitEvent::Ended { frames, .. } => {
+                if let Some(visit) = visits.last_mut() {
+                    visit.frames = frames;
+                }
+            }
+        }
+    }
+    Ok(())
+}
+
 /// Writes a kept frame into its visit's folder: compressed frames as their own file, raw ones as
 /// PNG.
-fn write_keyframe(visit: &mut IngestedVisit, keyframe: Keyframe) -> Result<(), PipelineError> {
-    let (format, bytes) = match keyframe.source {
-        FrameImage::File { bytes, format } => (format, bytes),
-        FrameImage::Raw(message) => {
-            (ImageFormat::Png, png(&images::from_raw(&message, &keyframe.origin)?, &keyframe.origin)?)
-        }
-    };
-    write_atomically(&visit.dir.join(frame_file(&visit.name, keyframe.index, format)), &bytes)?;
+fn write_keyframe(visit: &mut IngestedVisit, index: usize, keyframe: Keyframe) -> Result<(), PipelineError> {
+    let (format, bytes) = keyframe.source.into_file(&keyframe.origin)?;
+    write_atomically(&visit.dir.join(frame_file(&visit.name, index, format)), &bytes)?;
     visit.keyframes += 1;
     Ok(())
 }

@@ -154,6 +154,106 @@ impl<T> KeyframeSelector<T> {
     }
 }
 
+/// What a [`VisitStream`] decided.
+#[derive(Debug)]
+pub enum VisitEvent<T> {
+    /// A visit begins; its keyframes follow.
+    Started { visit: String },
+    /// A frame was kept: the `index`-th frame of its visit (counting every frame offered).
+    Keyframe { visit: String, index: usize, frame: T, reason: Reason },
+    /// The visit is over, after `frames` frames.
+    Ended { visit: String, frames: usize },
+}
+
+/// A camera stream cut into visits and keyframes, sans-IO: the bag ingest and the ingest node
+/// drive the same one. A visit starts at the first frame (named `name`, or `name-1`, `name-2`,
+/// ... when a gap of more than `split_gap_s` between frames splits the stream), or when told
+/// ([`VisitStream::start`], a session-control message); it ends at a split, when told, or at
+/// [`VisitStream::end`].
+pub struct VisitStream<T> {
+    keyframes: KeyframeOptions,
+    name: String,
+    split_gap_s: Option<f64>,
+    splits: usize,
+    current: Option<(String, usize)>,
+    selector: KeyframeSelector<(usize, T)>,
+    position_m: Option<[f64; 3]>,
+    last_frame_ns: Option<u64>,
+}
+
+impl<T> VisitStream<T> {
+    pub fn new(name: &str, split_gap_s: Option<f64>, keyframes: KeyframeOptions) -> Self {
+        Self {
+            keyframes,
+            name: name.to_owned(),
+            split_gap_s,
+            splits: 0,
+            current: None,
+            selector: KeyframeSelector::new(keyframes),
+            position_m: None,
+            last_frame_ns: None,
+        }
+    }
+
+    /// The vehicle's position now (odometry), for keyframes by distance.
+    pub fn position(&mut self, position_m: [f64; 3]) {
+        self.position_m = Some(position_m);
+    }
+
+    /// Ends the current visit, if any, and starts `visit`.
+    pub fn start(&mut self, visit: &str) -> Vec<VisitEvent<T>> {
+        let mut events = self.end();
+        self.current = Some((visit.to_owned(), 0));
+        events.push(VisitEvent::Started { visit: visit.to_owned() });
+        events
+    }
+
+    /// Ends the current visit: its last frame is kept if it was not.
+    pub fn end(&mut self) -> Vec<VisitEvent<T>> {
+        let Some((visit, frames)) = self.current.take() else { return Vec::new() };
+        let mut events = Vec::new();
+        if let Some(((index, frame), reason)) = self.selector.finish() {
+            events.push(VisitEvent::Keyframe { visit: visit.clone(), index, frame, reason });
+        }
+        self.selector = KeyframeSelector::new(self.keyframes);
+        self.last_frame_ns = None;
+        events.push(VisitEvent::Ended { visit, frames });
+        events
+    }
+
+    /// The name of the visit frames go to now, if one has started.
+    pub fn visit(&self) -> Option<&str> {
+        self.current.as_ref().map(|(name, _)| name.as_str())
+    }
+
+    /// Offers the next frame, taken at `time_ns`.
+    pub fn frame(&mut self, frame: T, time_ns: u64, image: &DynamicImage) -> Vec<VisitEvent<T>> {
+        let gap = self
+            .split_gap_s
+            .zip(self.last_frame_ns)
+            .is_some_and(|(gap_s, last)| time_ns.saturating_sub(last) as f64 * 1e-9 > gap_s);
+        let mut events = Vec::new();
+        if self.current.is_none() || gap {
+            let visit = match self.split_gap_s {
+                Some(_) => {
+                    self.splits += 1;
+                    format!("{}-{}", self.name, self.splits)
+                }
+                None => self.name.clone(),
+            };
+            events = self.start(&visit);
+        }
+        self.last_frame_ns = Some(time_ns);
+        let Some((visit, frames)) = &mut self.current else { return events };
+        let index = *frames;
+        *frames += 1;
+        for ((index, frame), reason) in self.selector.offer((index, frame), time_ns, self.position_m, image) {
+            events.push(VisitEvent::Keyframe { visit: visit.clone(), index, frame, reason });
+        }
+        events
+    }
+}
+
 /// A small grey copy of a frame, high-passed (each pixel minus its 5x5 neighbourhood's mean) so
 /// that smooth shading cannot correlate by chance.
 struct Thumb {

@@ -61,9 +61,8 @@ impl RosArgs {
         let mut parsed = RosArgs::default();
         let mut words = words.iter();
         while let Some(flag) = words.next() {
-            let mut value = |what: &str| {
-                words.next().cloned().ok_or_else(|| NodeError::Args(format!("{flag} needs {what}")))
-            };
+            let mut value =
+                |what: &str| words.next().cloned().ok_or_else(|| NodeError::Args(format!("{flag} needs {what}")));
             match flag.as_str() {
                 "-p" | "--param" => {
                     let assignment = value("NAME:=VALUE")?;
@@ -90,7 +89,8 @@ impl RosArgs {
                 "--log-level" | "-e" | "--enclave" => {
                     value("a value")?;
                 }
-                "--disable-rosout-logs" | "--disable-stdout-logs" | "--enable-rosout-logs" | "--enable-stdout-logs" => {}
+                "--disable-rosout-logs" | "--disable-stdout-logs" | "--enable-rosout-logs" | "--enable-stdout-logs" => {
+                }
                 other => return Err(NodeError::Args(format!("unknown --ros-args flag {other:?}"))),
             }
         }
@@ -122,9 +122,8 @@ pub fn read_params_file(path: &Path, namespace: &str, name: &str) -> Result<Vec<
         if !applies {
             continue;
         }
-        let values = section
-            .get("ros__parameters")
-            .ok_or_else(|| fail(format!("section {key:?} has no ros__parameters")))?;
+        let values =
+            section.get("ros__parameters").ok_or_else(|| fail(format!("section {key:?} has no ros__parameters")))?;
         flatten("", values, &mut parameters);
     }
     Ok(parameters)
@@ -157,7 +156,8 @@ mod tests {
 
     #[test]
     fn ros_args_are_split_from_the_programs_own_and_read_in_order() {
-        let args = words("node --rate 2 --ros-args -p depth:=5 -p name:=reef -r __ns:=/auv -r image:=/cam/image -- --out x");
+        let args =
+            words("node --rate 2 --ros-args -p depth:=5 -p name:=reef -r __ns:=/auv -r image:=/cam/image -- --out x");
         let (own, ros) = RosArgs::split(args).unwrap();
         assert_eq!(own, words("node --rate 2 --out x"));
         assert_eq!(ros.namespace.as_deref(), Some("/auv"));

@@ -14,8 +14,7 @@ use ros2_client::dds::rustdds::{self, no_key};
 use ros2_client::log::LogLevel;
 use ros2_client::qos::{Durability, History, Reliability, WhenFull};
 use ros2_client::{
-    Context, MessageTypeName, Name, NodeName, NodeOptions, Publisher, QosProfile, RosoutRaw,
-    Subscription,
+    Context, MessageTypeName, Name, NodeName, NodeOptions, Publisher, QosProfile, RosoutRaw, Subscription,
 };
 use tokio::sync::watch;
 use tokio::task::JoinHandle;
@@ -166,7 +165,12 @@ impl Node {
     }
 
     /// A writer of CDR bytes of type `type_name` (`pkg/msg/Type`) on `topic`.
-    pub fn raw_publisher(&mut self, topic: &str, type_name: &str, default: QosProfile) -> Result<RawPublisher, NodeError> {
+    pub fn raw_publisher(
+        &mut self,
+        topic: &str,
+        type_name: &str,
+        default: QosProfile,
+    ) -> Result<RawPublisher, NodeError> {
         let (topic, qos) = self.topic(topic, type_name, Endpoint::Publisher, default)?;
         let qos = rustdds::QosPolicies::from(&qos);
         let publisher = match &self.raw_publisher {
@@ -180,7 +184,12 @@ impl Node {
     }
 
     /// A reader of CDR bytes of type `type_name` on `topic`.
-    pub fn raw_subscription(&mut self, topic: &str, type_name: &str, default: QosProfile) -> Result<RawSubscription, NodeError> {
+    pub fn raw_subscription(
+        &mut self,
+        topic: &str,
+        type_name: &str,
+        default: QosProfile,
+    ) -> Result<RawSubscription, NodeError> {
         let (topic, qos) = self.topic(topic, type_name, Endpoint::Subscription, default)?;
         let qos = rustdds::QosPolicies::from(&qos);
         let subscriber = match &self.raw_subscriber {
@@ -376,7 +385,8 @@ impl Domain {
                 _ => return Err(NodeError::Args(format!("ROS_DOMAIN_ID={text:?} is not a domain id (0-232)"))),
             },
         };
-        let localhost_only = std::env::var("ROS_AUTOMATIC_DISCOVERY_RANGE").is_ok_and(|v| v.eq_ignore_ascii_case("localhost"))
+        let localhost_only = std::env::var("ROS_AUTOMATIC_DISCOVERY_RANGE")
+            .is_ok_and(|v| v.eq_ignore_ascii_case("localhost"))
             || std::env::var("ROS_LOCALHOST_ONLY").is_ok_and(|v| v.trim() == "1");
         Ok(Domain { id, localhost_only })
     }

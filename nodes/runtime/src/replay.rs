@@ -62,7 +62,12 @@ pub enum ReplayError {
 
 /// Publishes the bag's messages in log-time order at `rate` times their pace; `progress` is
 /// told each message published. Returns early (with what was done) when the node is stopped.
-pub async fn play(node: &mut Node, bag: &Bag, options: &PlayOptions, progress: &dyn Fn(u64)) -> Result<Played, ReplayError> {
+pub async fn play(
+    node: &mut Node,
+    bag: &Bag,
+    options: &PlayOptions,
+    progress: &dyn Fn(u64),
+) -> Result<Played, ReplayError> {
     if !(options.rate >= 0.0 && options.rate.is_finite()) {
         return Err(ReplayError::Invalid(format!("--rate {} must be a number >= 0", options.rate)));
     }
@@ -190,7 +195,10 @@ pub async fn record(
             for found in node.discovered_topics() {
                 let Some(index) = pending.iter().position(|t| *t == found.name) else { continue };
                 let known = revisit_msgs::find(&found.type_name).ok_or_else(|| {
-                    ReplayError::Invalid(format!("topic {}: type {} is not one Revisit knows", found.name, found.type_name))
+                    ReplayError::Invalid(format!(
+                        "topic {}: type {} is not one Revisit knows",
+                        found.name, found.type_name
+                    ))
                 })?;
                 let (qos, bag_qos) = match found.reliable {
                     true => (RELIABLE.history(History::KeepLast { depth: 100 }), revisit_bag::QosProfile::RELIABLE),

@@ -37,7 +37,8 @@ async fn sim_time_diagnostics_and_remapped_replay() {
     let dir = tempfile::tempdir().unwrap();
     let bag = stamps_bag(dir.path());
 
-    let mut listener = Node::start_in(domain, "listener", &args(&["-p", "use_sim_time:=true", "-r", "__ns:=/auv"])).unwrap();
+    let mut listener =
+        Node::start_in(domain, "listener", &args(&["-p", "use_sim_time:=true", "-r", "__ns:=/auv"])).unwrap();
     assert_eq!(listener.full_name(), "/auv/listener");
     assert_eq!(listener.now(), Time::default(), "sim time is zero until /clock speaks");
     let stamps = listener.subscription::<Header>("stamps", RELIABLE).unwrap();
@@ -63,7 +64,9 @@ async fn sim_time_diagnostics_and_remapped_replay() {
     let mut stream = std::pin::pin!(stamps.async_stream());
     while received.len() < 5 {
         let next = tokio::time::timeout(Duration::from_secs(10), stream.next()).await;
-        let Ok(Some(Ok((header, _)))) = next else { panic!("only {} of 5 stamps arrived on /auv/stamps", received.len()) };
+        let Ok(Some(Ok((header, _)))) = next else {
+            panic!("only {} of 5 stamps arrived on /auv/stamps", received.len())
+        };
         received.push(header.frame_id);
     }
     assert_eq!(received, ["frame0", "frame1", "frame2", "frame3", "frame4"]);

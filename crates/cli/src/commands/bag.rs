@@ -137,18 +137,14 @@ pub fn run(command: Command) -> Result<()> {
                 bar.finish_and_clear();
                 Ok(played?)
             })?;
-            println!(
-                "published {} messages in {:.1} s ({} skipped)",
-                played.published, played.seconds, played.skipped
-            );
+            println!("published {} messages in {:.1} s ({} skipped)", played.published, played.seconds, played.skipped);
             Ok(())
         }
         Command::Record { topics, out, duration, max_messages, ros_args } => {
             if duration.is_some_and(|d| !(d > 0.0 && d.is_finite())) {
                 anyhow::bail!("--duration must be a positive number of seconds");
             }
-            let options =
-                RecordOptions { topics, duration: duration.map(Duration::from_secs_f64), max_messages };
+            let options = RecordOptions { topics, duration: duration.map(Duration::from_secs_f64), max_messages };
             let written = in_node("revisit_bag_recorder", &ros_args, async |node| {
                 let bar = crate::progress::spinner("record");
                 let written = revisit_node::record(node, &out, &options, &|n| bar.set_position(n)).await;
