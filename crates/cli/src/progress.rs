@@ -12,10 +12,8 @@ pub fn init_logging(verbose: u8) {
         1 => "debug",
         _ => "trace",
     };
-    // RustDDS narrates discovery at info level and complains about leaving multicast groups it
-    // never joined (loopback only): only its other warnings are worth a user's terminal.
     let filter = EnvFilter::try_from_default_env()
-        .unwrap_or_else(|_| EnvFilter::new(format!("{default},rustdds=warn,ros2_client=warn,ros2_client::distributions=error,rustdds::network::udp_listener=off")));
+        .unwrap_or_else(|_| EnvFilter::new(format!("{default},{}", revisit_node::QUIET_DDS)));
     tracing_subscriber::fmt().with_env_filter(filter).with_writer(std::io::stderr).with_target(false).init();
 }
 

@@ -26,6 +26,18 @@ pub use ros2_client::log::LogLevel;
 pub use ros2_client::{Publisher, QosProfile, Subscription};
 pub use stats::Stage;
 
+/// Log filter directives that keep DDS's chatter off the terminal: RustDDS narrates discovery at
+/// info level and complains about leaving multicast groups it never joined (loopback only).
+pub const QUIET_DDS: &str =
+    "rustdds=warn,ros2_client=warn,ros2_client::distributions=error,rustdds::network::udp_listener=off";
+
+/// Terminal logging for a node process: info and up, `RUST_LOG` overriding.
+pub fn init_logging() {
+    use tracing_subscriber::EnvFilter;
+    let filter = EnvFilter::try_from_default_env().unwrap_or_else(|_| EnvFilter::new(format!("info,{QUIET_DDS}")));
+    tracing_subscriber::fmt().with_env_filter(filter).with_writer(std::io::stderr).with_target(false).init();
+}
+
 /// What can go wrong starting or running a node; each names what is at fault.
 #[derive(Debug, thiserror::Error)]
 pub enum NodeError {

@@ -1,0 +1,210 @@
+//! The ingest node: camera topics in (`image` or `image/compressed`, `camera_info`, `odom`,
+//! session control on `/revisit/session`), keyframes of visits out (`keyframes`, with START and
+//! END on `visits`). Thin over the pipeline's [`VisitStream`], which `reconstruct --bag` drives
+//! too.
+//!
+//! Parameters: `session` (the visit's name; when unset, visits start and end by session-control
+//! messages and frames outside a visit are dropped), `split_gap_s`, `keyframe.min_overlap`
+//! (default 0.7; 0 or less keeps every frame), `keyframe.every_s`, `keyframe.distance_m`,
+//! `camera` (default `cam0`).
+
+use std::path::Path;
+use std::time::Instant;
+
+use futures::StreamExt;
+use revisit_msgs::geometry_msgs::PoseWithCovariance;
+use revisit_msgs::nav_msgs::Odometry;
+use revisit_msgs::revisit_msgs::{Keyframe, SessionControl};
+use revisit_msgs::sensor_msgs::{CameraInfo, CompressedImage, Image};
+use revisit_node::{LogLevel, Node, NodeError, Publisher, LATCHED, RELIABLE, SENSOR_DATA};
+use revisit_pipeline::bags::{frame_file, Frame};
+use revisit_pipeline::keyframes::{KeyframeOptions, VisitEvent, VisitStream, DEFAULT_MIN_OVERLAP};
+
+/// The node's name unless remapped.
+pub const NAME: &str = "ingest";
+
+/// What a run did.
+#[derive(Debug, Default, Clone, PartialEq, Eq)]
+pub struct Summary {
+    pub frames: u64,
+    pub keyframes: u64,
+    pub dropped: u64,
+    pub visits: Vec<String>,
+}
+
+struct Pending {
+    frame: Frame,
+    camera_info: CameraInfo,
+    prior: Option<PoseWithCovariance>,
+}
+
+struct Outputs {
+    keyframes: Publisher<Keyframe>,
+    visits: Publisher<SessionControl>,
+    camera: String,
+    summary: Summary,
+}
+
+/// Runs the ingest node until SIGINT or SIGTERM, then ends the visit in progress.
+pub async fn run(node: &mut Node) -> Result<Summary, NodeError> {
+    let session: Option<String> = node.param("session", None)?;
+    let split_gap_s: Option<f64> = node.param("split_gap_s", None)?;
+    let min_overlap: f64 = node.param("keyframe.min_overlap", DEFAULT_MIN_OVERLAP)?;
+    let keyframes = KeyframeOptions {
+        min_overlap: (min_overlap > 0.0).then_some(min_overlap),
+        every_s: node.param("keyframe.every_s", None)?,
+        distance_m: node.param("keyframe.distance_m", None)?,
+    };
+    keyframes.check().map_err(|reason| NodeError::Parameter { name: "keyframe.*".into(), reason })?;
+    let mut stream: VisitStream<Pending> =
+        VisitStream::new(session.as_deref().unwrap_or("visit"), split_gap_s, keyframes);
+    let driven_by_control = session.is_none();
+
+    let images = node.subscription::<Image>("image", SENSOR_DATA)?;
+    let compressed = node.subscription::<CompressedImage>("image/compressed", SENSOR_DATA)?;
+    let infos = node.subscription::<CameraInfo>("camera_info", SENSOR_DATA)?;
+    let odometry = node.subscription::<Odometry>("odom", SENSOR_DATA)?;
+    let control = node.subscription::<SessionControl>("/revisit/session", RELIABLE)?;
+    let mut out = Outputs {
+        keyframes: node.publisher::<Keyframe>("keyframes", RELIABLE)?,
+        visits: node.publisher::<SessionControl>("visits", LATCHED)?,
+        camera: node.param("camera", "cam0".to_owned())?,
+        summary: Summary::default(),
+    };
+    let stage = node.stage("frames");
+    let stopped = node.stopped();
+    let mut stopped = std::pin::pin!(stopped);
+    let (mut images, mut compressed) =
+        (std::pin::pin!(images.async_stream()), std::pin::pin!(compressed.async_stream()));
+    let (mut infos, mut odometry) = (std::pin::pin!(infos.async_stream()), std::pin::pin!(odometry.async_stream()));
+    let mut control = std::pin::pin!(control.async_stream());
+    let mut camera_info = CameraInfo::default();
+    let mut prior: Option<PoseWithCovariance> = None;
+    node.log(
+        LogLevel::Info,
+        &format!("ingesting {}", session.as_deref().unwrap_or("visits named by /revisit/session")),
+    );
+    loop {
+        let frame = tokio::select! {
+            () = &mut stopped => break,
+            Some(Ok((image, _))) = images.next() => Ok(Frame::raw(image, received_ns(node))),
+            Some(Ok((image, _))) = compressed.next() => Frame::compressed(image, received_ns(node)),
+            Some(Ok((info, _))) = infos.next() => {
+                camera_info = info;
+                continue;
+            }
+            Some(Ok((message, _))) = odometry.next() => {
+                let p = message.pose.pose.position;
+                stream.position([p.x, p.y, p.z]);
+                prior = Some(message.pose);
+                continue;
+            }
+            Some(Ok((message, _))) = control.next() => {
+                let events = match message.command {
+                    SessionControl::START => stream.start(&message.session),
+                    SessionControl::END => stream.end(),
+                    other => {
+                        node.log(LogLevel::Warn, &format!("session control command {other} is neither START nor END"));
+                        continue;
+                    }
+                };
+                publish(node, &mut out, events).await?;
+                continue;
+            }
+        };
+        stage.received();
+        out.summary.frames += 1;
+        let started = Instant::now();
+        let frame = match frame {
+            Ok(frame) if !(driven_by_control && stream.visit().is_none()) => frame,
+            Ok(_) => {
+                stage.dropped(1);
+                out.summary.dropped += 1;
+                continue;
+            }
+            Err(why) => {
+                node.log(LogLevel::Warn, &format!("frame dropped: {why}"));
+                stage.dropped(1);
+                out.summary.dropped += 1;
+                continue;
+            }
+        };
+        let origin = Path::new("image");
+        let image = match frame.decode(origin) {
+            Ok(image) => image,
+            Err(error) => {
+                node.log(LogLevel::Warn, &format!("frame dropped: {error}"));
+                stage.dropped(1);
+                out.summary.dropped += 1;
+                continue;
+            }
+        };
+        let time_ns = frame.time_ns(frame.log_time_ns);
+        let pending = Pending { frame, camera_info: camera_info.clone(), prior };
+        let events = stream.frame(pending, time_ns, &image);
+        publish(node, &mut out, events).await?;
+        stage.done(started.elapsed());
+    }
+    let events = stream.end();
+    publish(node, &mut out, events).await?;
+    Ok(out.summary)
+}
+
+async fn publish(node: &Node, out: &mut Outputs, events: Vec<VisitEvent<Pending>>) -> Result<(), NodeError> {
+    let failed = |e: String| NodeError::Dds(e);
+    for event in events {
+        match event {
+            VisitEvent::Started { visit } => {
+                let message = SessionControl {
+                    header: node.header(""),
+                    command: SessionControl::START,
+                    session: visit.clone(),
+                    source: node.full_name(),
+                };
+                out.visits.async_publish(message).await.map_err(|e| failed(format!("{e:?}")))?;
+                node.log(LogLevel::Info, &format!("visit {visit} started"));
+                out.summary.visits.push(visit);
+            }
+            VisitEvent::Keyframe { visit, index, frame, .. } => {
+                let Pending { frame, camera_info, prior } = frame;
+                let stamp = frame.stamp;
+                let (format, data) = frame.image.into_file(Path::new(&visit)).map_err(|e| failed(e.to_string()))?;
+                let image_name = frame_file(&visit, index, format);
+                let header = revisit_msgs::std_msgs::Header { stamp, frame_id: camera_info.header.frame_id.clone() };
+                let image = CompressedImage {
+                    header: header.clone(),
+                    format: if image_name.ends_with(".png") { "png".into() } else { "jpeg".into() },
+                    data,
+                };
+                let message = Keyframe {
+                    header,
+                    session: visit,
+                    camera: out.camera.clone(),
+                    image_name,
+                    image,
+                    camera_info,
+                    has_prior: prior.is_some(),
+                    prior: prior.unwrap_or_default(),
+                };
+                out.keyframes.async_publish(message).await.map_err(|e| failed(format!("{e:?}")))?;
+                out.summary.keyframes += 1;
+            }
+            VisitEvent::Ended { visit, frames } => {
+                let message = SessionControl {
+                    header: node.header(""),
+                    command: SessionControl::END,
+                    session: visit.clone(),
+                    source: node.full_name(),
+                };
+                out.visits.async_publish(message).await.map_err(|e| failed(format!("{e:?}")))?;
+                node.log(LogLevel::Info, &format!("visit {visit} ended after {frames} frames"));
+            }
+        }
+    }
+    Ok(())
+}
+
+/// The node's time now (the bag's with `use_sim_time`), as a receive time.
+fn received_ns(node: &Node) -> u64 {
+    u64::try_from(node.now().as_nanos()).unwrap_or_default()
+}

@@ -1,0 +1,22 @@
+//! `revisit-ingest [--ros-args ...]`: the ingest node (see the library's documentation).
+
+use revisit_node::{Node, RosArgs};
+
+fn main() -> anyhow::Result<()> {
+    revisit_node::init_logging();
+    let (_, args) = RosArgs::split(std::env::args().skip(1))?;
+    tokio::runtime::Runtime::new()?.block_on(async {
+        let mut node = Node::start(revisit_ingest_node::NAME, &args)?;
+        let summary = revisit_ingest_node::run(&mut node).await;
+        node.shutdown().await;
+        let summary = summary?;
+        tracing::info!(
+            "{} frames, {} keyframes, {} dropped, visits {:?}",
+            summary.frames,
+            summary.keyframes,
+            summary.dropped,
+            summary.visits
+        );
+        Ok(())
+    })
+}

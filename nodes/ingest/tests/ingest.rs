@@ -1,0 +1,114 @@
+//! The ingest node fed by a played bag keeps the same keyframes, under the same names, as the
+//! offline bag ingest (`reconstruct --bag`) of that bag; visits start and end by session control.
+
+#![allow(clippy::unwrap_used, clippy::expect_used)]
+
+use std::time::Duration;
+
+use futures::StreamExt;
+use image::{DynamicImage, ImageFormat, RgbImage};
+use revisit_bag::{Bag, BagWriter, QosProfile};
+use revisit_msgs::builtin_interfaces::Time;
+use revisit_msgs::revisit_msgs::{Keyframe, SessionControl};
+use revisit_msgs::sensor_msgs::CompressedImage;
+use revisit_msgs::std_msgs::Header;
+use revisit_node::{play, Domain, Node, PlayOptions, RosArgs, LATCHED, RELIABLE};
+use revisit_pipeline::bags::{ingest, IngestOptions};
+use revisit_pipeline::ingest::SessionSpec;
+use revisit_pipeline::{Cancel, Silent};
+
+const T0_NS: u64 = 1_767_225_600_000_000_000;
+
+/// A visit "a": START, 24 PNG frames of a window sliding 9 px a frame over a noise texture
+/// (10 Hz), END.
+fn sliding_bag(dir: &std::path::Path) -> Bag {
+    let mut state = 0x2545_f491_4f6c_dd1du64;
+    let texture = RgbImage::from_fn(420, 120, |_, _| {
+        state ^= state << 13;
+        state ^= state >> 7;
+        state ^= state << 17;
+        let v = (state >> 56) as u8;
+        image::Rgb([v, v / 2, 255 - v])
+    });
+    let texture = image::imageops::blur(&texture, 1.5);
+    let mut writer = BagWriter::create(&dir.join("bag")).unwrap();
+    let control = writer.add_topic::<SessionControl>("/revisit/session", QosProfile::LATCHED).unwrap();
+    let frames = writer.add_topic::<CompressedImage>("/camera/image_raw/compressed", QosProfile::SENSOR_DATA).unwrap();
+    let say = |command, ns: u64| SessionControl {
+        header: Header { stamp: Time::from_nanos(ns as i64), frame_id: String::new() },
+        command,
+        session: "a".into(),
+        source: "test".into(),
+    };
+    writer.write(control, T0_NS, &say(SessionControl::START, T0_NS)).unwrap();
+    for i in 0..24u32 {
+        let ns = T0_NS + 300_000_000 + u64::from(i) * 100_000_000;
+        let window = image::imageops::crop_imm(&texture, i * 9, 0, 160, 120).to_image();
+        let mut png = Vec::new();
+        DynamicImage::ImageRgb8(window).write_to(&mut std::io::Cursor::new(&mut png), ImageFormat::Png).unwrap();
+        let header = Header { stamp: Time::from_nanos(ns as i64), frame_id: "camera".into() };
+        writer.write(frames, ns, &CompressedImage { header, format: "png".into(), data: png }).unwrap();
+    }
+    let end_ns = T0_NS + 300_000_000 + 24 * 100_000_000 + 300_000_000;
+    writer.write(control, end_ns, &say(SessionControl::END, end_ns)).unwrap();
+    Bag::open(&writer.finish().unwrap().dir).unwrap()
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn played_bag_gives_the_offline_keyframes() {
+    let dir = tempfile::tempdir().unwrap();
+    let bag = sliding_bag(dir.path());
+    let spec = SessionSpec { name: "a".into(), dir: bag.path().to_owned() };
+    let offline =
+        ingest(&spec, &IngestOptions::default(), &dir.path().join("offline"), &Silent, &Cancel::new()).unwrap();
+    let mut expected: Vec<String> = std::fs::read_dir(&offline.visits[0].dir)
+        .unwrap()
+        .map(|e| e.unwrap().file_name().into_string().unwrap())
+        .collect();
+    expected.sort();
+    assert!(expected.len() > 3 && expected.len() < 24, "the selection should keep some frames: {expected:?}");
+
+    let domain = Domain { id: 43, localhost_only: true };
+    let words = ["-r", "image/compressed:=/camera/image_raw/compressed"].map(String::from);
+    let mut ingest_node = Node::start_in(domain, revisit_ingest_node::NAME, &RosArgs::parse(&words).unwrap()).unwrap();
+    let mut listener = Node::start_in(domain, "listener", &RosArgs::default()).unwrap();
+    let keyframes = listener.subscription::<Keyframe>("/keyframes", RELIABLE).unwrap();
+    let visits = listener.subscription::<SessionControl>("/visits", LATCHED).unwrap();
+    let running = tokio::spawn(async move {
+        let summary = revisit_ingest_node::run(&mut ingest_node).await;
+        (ingest_node, summary)
+    });
+    let mut player = Node::start_in(domain, "player", &RosArgs::default()).unwrap();
+    let options = PlayOptions { wait_for_subscribers: true, ..Default::default() };
+    play(&mut player, &bag, &options, &|_| {}).await.unwrap();
+
+    let mut names = Vec::new();
+    let mut keyframes = std::pin::pin!(keyframes.async_stream());
+    let mut visits = std::pin::pin!(visits.async_stream());
+    let mut said = Vec::new();
+    let collected = tokio::time::timeout(Duration::from_secs(30), async {
+        while said.len() < 2 {
+            tokio::select! {
+                Some(Ok((keyframe, _))) = keyframes.next() => {
+                    assert_eq!(keyframe.session, "a");
+                    names.push(keyframe.image_name);
+                }
+                Some(Ok((control, _))) = visits.next() => said.push((control.command, control.session)),
+            }
+        }
+        // Keyframes published before END may still be arriving.
+        while let Ok(Some(Ok((keyframe, _)))) = tokio::time::timeout(Duration::from_millis(500), keyframes.next()).await
+        {
+            names.push(keyframe.image_name);
+        }
+    })
+    .await;
+    assert!(collected.is_ok(), "no END within 30 s; keyframes so far {names:?}, visits {said:?}");
+    assert_eq!(said, [(SessionControl::START, "a".to_owned()), (SessionControl::END, "a".to_owned())]);
+    names.sort();
+    assert_eq!(names, expected);
+
+    running.abort();
+    player.shutdown().await;
+    listener.shutdown().await;
+}
