@@ -12,7 +12,7 @@ mod read;
 mod write;
 
 pub use metadata::{QosProfile, Storage};
-pub use read::{Bag, BagInfo, RawMessage, Topic, TopicStats};
+pub use read::{Bag, BagInfo, Offered, RawMessage, Topic, TopicStats};
 pub use write::{BagWriter, TopicHandle, WrittenBag};
 
 use std::path::PathBuf;

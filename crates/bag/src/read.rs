@@ -24,6 +24,34 @@ pub struct Topic {
     pub serialization_format: String,
     /// The ros2msg schema text, when the storage keeps it (mcap does, sqlite3 does not).
     pub schema: Option<String>,
+    /// What its recorded publishers offered, when the bag says (`offered_qos_profiles`).
+    pub offered: Option<Offered>,
+}
+
+/// The QoS a topic's publishers offered when it was recorded, as far as a player needs it.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Offered {
+    /// Every publisher was reliable.
+    pub reliable: bool,
+    /// Every publisher kept its last messages for late subscribers (a latched topic).
+    pub transient_local: bool,
+}
+
+impl Offered {
+    /// From rosbag2's `offered_qos_profiles` YAML: a list of profiles whose `reliability` and
+    /// `durability` are rmw's numbers (1 reliable / transient local) or, from Iron on, names.
+    pub fn parse(yaml: &str) -> Option<Offered> {
+        let profiles: Vec<serde_yaml_ng::Value> = serde_yaml_ng::from_str(yaml).ok()?;
+        let is = |profile: &serde_yaml_ng::Value, key: &str, number: u64, name: &str| match profile.get(key) {
+            Some(serde_yaml_ng::Value::Number(n)) => n.as_u64() == Some(number),
+            Some(serde_yaml_ng::Value::String(s)) => s.eq_ignore_ascii_case(name),
+            _ => false,
+        };
+        (!profiles.is_empty()).then(|| Offered {
+            reliable: profiles.iter().all(|p| is(p, "reliability", 1, "reliable")),
+            transient_local: profiles.iter().all(|p| is(p, "durability", 1, "transient_local")),
+        })
+    }
 }
 
 /// One message as stored: its topic, its receive time and its serialized bytes.
@@ -326,11 +354,13 @@ impl McapSource {
                         Some((name, text)) => (name.clone(), Some(text.clone())),
                         None => (String::new(), None),
                     };
+                    let offered = channel.metadata.get("offered_qos_profiles").and_then(|y| Offered::parse(y));
                     let topic = Topic {
                         name: channel.topic,
                         type_name,
                         serialization_format: channel.message_encoding,
                         schema,
+                        offered,
                     };
                     self.topics.insert(channel.id, Arc::new(topic));
                 }
@@ -411,10 +441,14 @@ impl SqliteSource {
         }
         let mut topics = HashMap::new();
         {
-            let mut statement =
-                connection.prepare("SELECT id, name, type, serialization_format FROM topics").map_err(sqlite)?;
+            // offered_qos_profiles came with rosbag2's schema version 2; older bags lack it.
+            let mut statement = connection
+                .prepare("SELECT id, name, type, serialization_format, offered_qos_profiles FROM topics")
+                .or_else(|_| connection.prepare("SELECT id, name, type, serialization_format, NULL FROM topics"))
+                .map_err(sqlite)?;
             let rows = statement
                 .query_map([], |row| {
+                    let qos: Option<String> = row.get(4).unwrap_or(None);
                     Ok((
                         row.get::<_, i64>(0)?,
                         Topic {
@@ -422,6 +456,7 @@ impl SqliteSource {
                             type_name: row.get(2)?,
                             serialization_format: row.get(3)?,
                             schema: None,
+                            offered: qos.as_deref().and_then(Offered::parse),
                         },
                     ))
                 })
@@ -467,5 +502,43 @@ impl SqliteSource {
             return Some(Err(bad_row(format!("negative timestamp {timestamp}"))));
         };
         Some(Ok(RawMessage { topic: topic.clone(), log_time_ns, data }))
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    #![allow(clippy::unwrap_used)]
+    use super::*;
+    use crate::QosProfile;
+
+    #[test]
+    fn offered_qos_reads_numbers_and_names_and_what_every_publisher_offered() {
+        let latched = "- history: 1\n  depth: 1\n  reliability: 1\n  durability: 1\n";
+        assert_eq!(Offered::parse(latched), Some(Offered { reliable: true, transient_local: true }));
+        let named = "- history: keep_last\n  reliability: best_effort\n  durability: volatile\n";
+        assert_eq!(Offered::parse(named), Some(Offered { reliable: false, transient_local: false }));
+        let mixed = "- {reliability: reliable, durability: transient_local}\n- {reliability: 1, durability: 2}\n";
+        assert_eq!(Offered::parse(mixed), Some(Offered { reliable: true, transient_local: false }));
+        assert_eq!(Offered::parse("[]"), None);
+        assert_eq!(Offered::parse(": not yaml"), None);
+    }
+
+    #[test]
+    fn a_written_bag_reads_back_its_offered_qos() {
+        let dir = tempfile::tempdir().unwrap();
+        let mut writer = crate::BagWriter::create(&dir.path().join("bag")).unwrap();
+        let latched = writer.add_topic::<revisit_msgs::builtin_interfaces::Time>("/latched", QosProfile::LATCHED);
+        let sensor = writer.add_topic::<revisit_msgs::builtin_interfaces::Time>("/sensor", QosProfile::SENSOR_DATA);
+        writer.write(latched.unwrap(), 1, &Default::default()).unwrap();
+        writer.write(sensor.unwrap(), 2, &Default::default()).unwrap();
+        let bag = Bag::open(&writer.finish().unwrap().dir).unwrap();
+        let offered: Vec<_> = bag.messages().map(|m| m.unwrap().topic.offered).collect();
+        assert_eq!(
+            offered,
+            [
+                Some(Offered { reliable: true, transient_local: true }),
+                Some(Offered { reliable: false, transient_local: false })
+            ]
+        );
     }
 }

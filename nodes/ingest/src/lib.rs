@@ -6,7 +6,9 @@
 //! Parameters: `session` (the visit's name; when unset, visits start and end by session-control
 //! messages and frames outside a visit are dropped), `split_gap_s`, `keyframe.min_overlap`
 //! (default 0.7; 0 or less keeps every frame), `keyframe.every_s`, `keyframe.distance_m`,
-//! `camera` (default `cam0`).
+//! `camera` (default `cam0`). `/revisit/session` is read latched (transient local, as `bag pack`
+//! and `synth --bag` record it); a volatile publisher needs
+//! `-p qos_overrides./revisit/session.subscription.durability:=volatile`.
 
 use std::path::Path;
 use std::time::Instant;
@@ -16,7 +18,7 @@ use revisit_msgs::geometry_msgs::PoseWithCovariance;
 use revisit_msgs::nav_msgs::Odometry;
 use revisit_msgs::revisit_msgs::{Keyframe, SessionControl};
 use revisit_msgs::sensor_msgs::{CameraInfo, CompressedImage, Image};
-use revisit_node::{LogLevel, Node, NodeError, Publisher, LATCHED, RELIABLE, SENSOR_DATA};
+use revisit_node::{History, LogLevel, Node, NodeError, Publisher, LATCHED, RELIABLE, SENSOR_DATA};
 use revisit_pipeline::bags::{frame_file, Frame};
 use revisit_pipeline::keyframes::{KeyframeOptions, VisitEvent, VisitStream, DEFAULT_MIN_OVERLAP};
 
@@ -64,7 +66,10 @@ pub async fn run(node: &mut Node) -> Result<Summary, NodeError> {
     let compressed = node.subscription::<CompressedImage>("image/compressed", SENSOR_DATA)?;
     let infos = node.subscription::<CameraInfo>("camera_info", SENSOR_DATA)?;
     let odometry = node.subscription::<Odometry>("odom", SENSOR_DATA)?;
-    let control = node.subscription::<SessionControl>("/revisit/session", RELIABLE)?;
+    // Latched, as `bag pack` and `synth --bag` record it: a START published before this node
+    // started still arrives.
+    let control =
+        node.subscription::<SessionControl>("/revisit/session", LATCHED.history(History::KeepLast { depth: 10 }))?;
     let mut out = Outputs {
         keyframes: node.publisher::<Keyframe>("keyframes", RELIABLE)?,
         visits: node.publisher::<SessionControl>("visits", LATCHED)?,

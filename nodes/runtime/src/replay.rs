@@ -8,7 +8,7 @@ use std::time::{Duration, Instant};
 use revisit_bag::{Bag, BagError, BagWriter, WrittenBag};
 use revisit_msgs::builtin_interfaces::Time;
 use revisit_msgs::rosgraph_msgs::Clock;
-use ros2_client::qos::{History, Reliability, WhenFull};
+use ros2_client::qos::{Durability, History, Reliability, WhenFull};
 use ros2_client::QosProfile;
 
 use crate::node::{dds, Node, RawPublisher, RawSubscription, RELIABLE};
@@ -90,7 +90,13 @@ pub async fn play(
         let topic = &stats.topic;
         if options.topics.is_empty() || options.topics.contains(&topic.name) {
             let published = node.names().resolve(&topic.name)?;
-            let writer = node.raw_publisher(&topic.name, &topic.type_name, qos.clone())?;
+            // Latched when it was recorded latched (session control, maps): a late subscriber
+            // still gets it. Reliable always: it matches best-effort subscribers too.
+            let qos = match topic.offered {
+                Some(offered) if offered.transient_local => qos.clone().durability(Durability::TransientLocal),
+                _ => qos.clone(),
+            };
+            let writer = node.raw_publisher(&topic.name, &topic.type_name, qos)?;
             writers.insert(topic.name.clone(), (published, writer));
         }
     }
