@@ -35,6 +35,10 @@ enum Command {
     /// ROS 2 bags (mcap or sqlite3): info, export an image topic, pack image folders.
     #[command(subcommand)]
     Bag(commands::bag::Command),
+    /// Start the ROS 2 node graph a launch file describes (launch-scripts/survey.yaml).
+    Launch(commands::launch::Args),
+    /// Run one ROS 2 node (ingest) in this process until Ctrl-C or SIGTERM.
+    Node(commands::launch::NodeArgs),
     /// Benchmarks that print Revisit's figures beside a reference implementation.
     #[command(subcommand)]
     Bench(commands::bench::Bench),
@@ -52,6 +56,8 @@ fn main() -> std::process::ExitCode {
         Command::Eval(args) => commands::eval::run(args),
         Command::Match(args) => commands::match_pair::run(args),
         Command::Bag(command) => commands::bag::run(command),
+        Command::Launch(args) => commands::launch::run(args),
+        Command::Node(args) => commands::launch::run_node(args),
         Command::Bench(bench) => commands::bench::run(bench),
         Command::Doctor(args) => commands::doctor::run(args),
     };

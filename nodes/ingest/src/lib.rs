@@ -85,6 +85,7 @@ pub async fn run(node: &mut Node) -> Result<Summary, NodeError> {
     let mut control = std::pin::pin!(control.async_stream());
     let mut camera_info = CameraInfo::default();
     let mut prior: Option<PoseWithCovariance> = None;
+    let mut last_stamp_ns: Option<u64> = None;
     node.log(
         LogLevel::Info,
         &format!("ingesting {}", session.as_deref().unwrap_or("visits named by /revisit/session")),
@@ -134,6 +135,15 @@ pub async fn run(node: &mut Node) -> Result<Summary, NodeError> {
                 continue;
             }
         };
+        let time_ns = frame.time_ns(frame.log_time_ns);
+        if last_stamp_ns == Some(time_ns) {
+            // The same frame delivered twice (RustDDS repeats a large fragmented sample now and
+            // then): dropped.
+            stage.dropped(1);
+            out.summary.dropped += 1;
+            continue;
+        }
+        last_stamp_ns = Some(time_ns);
         let origin = Path::new("image");
         let image = match frame.decode(origin) {
             Ok(image) => image,
@@ -144,7 +154,6 @@ pub async fn run(node: &mut Node) -> Result<Summary, NodeError> {
                 continue;
             }
         };
-        let time_ns = frame.time_ns(frame.log_time_ns);
         let pending = Pending { frame, camera_info: camera_info.clone(), prior };
         let events = stream.frame(pending, time_ns, &image);
         publish(node, &mut out, events).await?;

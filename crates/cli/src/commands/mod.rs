@@ -2,6 +2,7 @@ pub mod bag;
 pub mod bench;
 pub mod doctor;
 pub mod eval;
+pub mod launch;
 pub mod match_pair;
 pub mod models;
 pub mod options;
