@@ -27,13 +27,18 @@ fn revisit_in(domain: u16) -> Command {
 fn peer(mode: &str, out: &Path, spec: &Value, dir: &Path) -> Child {
     let spec_path = dir.join(format!("{mode}.json"));
     std::fs::write(&spec_path, spec.to_string()).unwrap();
-    Command::new(common::python())
-        .arg(revisit_testkit::repo().join("crates/bag/tests/interop.py"))
-        .args([mode.as_ref(), out.as_os_str(), spec_path.as_os_str()])
+    revisit_testkit::interop_command(mode, out, &spec_path)
         .stdout(Stdio::piped())
         .stderr(Stdio::piped())
         .spawn()
         .unwrap()
+}
+
+/// `revisit bag record` in `domain` into `out`, with `args` before `--out`.
+fn recorder(domain: u16, args: &[&str], out: &Path) -> Child {
+    let mut command = revisit_in(domain);
+    command.args(["bag", "record"]).args(args).arg("--out").arg(out);
+    command.stdout(Stdio::piped()).stderr(Stdio::piped()).spawn().unwrap()
 }
 
 /// Waits for `child` to end within `limit` (killing it if not) and returns its stdout and stderr.
@@ -149,14 +154,8 @@ fn bag_record_records_what_a_cyclone_dds_peer_publishes() {
     let images: Vec<Image> = (11..=13).map(sample::message).collect();
     let infos: Vec<CameraInfo> = (14..=16).map(sample::message).collect();
     let out = dir.path().join("recorded");
-    let recorder = revisit_in(52)
-        .args(["bag", "record", "/camera/image_raw", "/camera/camera_info", "--max-messages", "6", "--duration", "60"])
-        .arg("--out")
-        .arg(&out)
-        .stdout(Stdio::piped())
-        .stderr(Stdio::piped())
-        .spawn()
-        .unwrap();
+    let topics = ["/camera/image_raw", "/camera/camera_info", "--max-messages", "6", "--duration", "60"];
+    let recorder = recorder(52, &topics, &out);
     let expected = json!({
         "/camera/image_raw": {"type": Image::DEFINITION.name, "values": values(&images)},
         "/camera/camera_info": {"type": CameraInfo::DEFINITION.name, "values": values(&infos)},
@@ -179,32 +178,14 @@ fn bag_record_records_what_a_cyclone_dds_peer_publishes() {
     // The recorded bag opens in mcap-ros2-support and rosbags with the same values.
     let expected_path = dir.path().join("expected.json");
     std::fs::write(&expected_path, expected.to_string()).unwrap();
-    let check = Command::new(common::python())
-        .arg(revisit_testkit::repo().join("crates/bag/tests/interop.py"))
-        .arg("check")
-        .args([&out, &expected_path])
-        .output()
-        .unwrap();
-    assert!(
-        check.status.success(),
-        "{}{}",
-        String::from_utf8_lossy(&check.stdout),
-        String::from_utf8_lossy(&check.stderr)
-    );
+    revisit_testkit::interop("check", &out, &expected_path);
 }
 
 #[test]
 fn bag_record_stops_on_ctrl_c_with_a_complete_bag() {
     let dir = tempfile::tempdir().unwrap();
     let out: PathBuf = dir.path().join("quiet");
-    let mut recorder = revisit_in(53)
-        .args(["bag", "record", "/nobody/publishes/this"])
-        .arg("--out")
-        .arg(&out)
-        .stdout(Stdio::piped())
-        .stderr(Stdio::piped())
-        .spawn()
-        .unwrap();
+    let mut recorder = recorder(53, &["/nobody/publishes/this"], &out);
     // Interrupt once it says it is recording (its signal handler is in place by then).
     let stderr = BufReader::new(recorder.stderr.take().unwrap());
     let (ready, is_ready) = std::sync::mpsc::channel();

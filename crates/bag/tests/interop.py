@@ -307,16 +307,19 @@ def reliable_qos(depth=1000):
     return Qos(Policy.Reliability.Reliable(duration(seconds=1)), Policy.History.KeepLast(depth))
 
 
+def endpoints(spec, kind, types):
+    """A reliable DataReader or DataWriter (`kind`) per topic of SPEC, in SPEC's domain."""
+    from cyclonedds.topic import Topic
+    participant = dds_participant(spec)
+    return {name: kind(participant, Topic(participant, "rt" + name, types[entry["type"]]), qos=reliable_qos())
+            for name, entry in spec["topics"].items()}
+
+
 def listen(out, spec):
     import time
 
     from cyclonedds.sub import DataReader
-    from cyclonedds.topic import Topic
-    participant = dds_participant(spec)
-    types = idl_types()
-    readers = {name: DataReader(participant, Topic(participant, "rt" + name, types[entry["type"]]),
-                                qos=reliable_qos())
-               for name, entry in spec["topics"].items()}
+    readers = endpoints(spec, DataReader, idl_types())
     print("ready", flush=True)
     got = {name: [] for name in readers}
     deadline = time.monotonic() + spec.get("timeout", 60)
@@ -332,12 +335,8 @@ def talk(_, spec):
     import time
 
     from cyclonedds.pub import DataWriter
-    from cyclonedds.topic import Topic
-    participant = dds_participant(spec)
     types = idl_types()
-    writers = {name: DataWriter(participant, Topic(participant, "rt" + name, types[entry["type"]]),
-                                qos=reliable_qos())
-               for name, entry in spec["topics"].items()}
+    writers = endpoints(spec, DataWriter, types)
     deadline = time.monotonic() + spec.get("timeout", 60)
     while any(not w.get_matched_subscriptions() for w in writers.values()):
         if time.monotonic() > deadline:

@@ -7,7 +7,6 @@
 
 use revisit_bag::{Bag, BagWriter, QosProfile};
 use serde_json::{json, Map, Value};
-use std::{path::Path, process::Command};
 
 /// Two sample messages of every type, one topic per type: topic -> {type, schema, values}.
 fn expected() -> Map<String, Value> {
@@ -19,18 +18,6 @@ fn expected() -> Map<String, Value> {
             (topic, json!({"type": t.definition.name, "schema": t.definition.schema(), "values": values}))
         })
         .collect()
-}
-
-fn interop(command: &str, path: &Path, expected: &Path) {
-    let script = revisit_testkit::repo().join("crates/bag/tests/interop.py");
-    let output =
-        Command::new(revisit_testkit::python()).arg(script).arg(command).arg(path).arg(expected).output().unwrap();
-    assert!(
-        output.status.success(),
-        "interop.py {command} failed:\n{}{}",
-        String::from_utf8_lossy(&output.stdout),
-        String::from_utf8_lossy(&output.stderr)
-    );
 }
 
 #[test]
@@ -50,7 +37,7 @@ fn bags_revisit_writes_decode_in_python_to_the_same_values() {
     assert_eq!(written.messages, 2 * revisit_msgs::ALL.len() as u64);
     let expected_path = dir.path().join("expected.json");
     std::fs::write(&expected_path, Value::Object(expected).to_string()).unwrap();
-    interop("check", &bag, &expected_path);
+    revisit_testkit::interop("check", &bag, &expected_path);
 }
 
 #[test]
@@ -59,7 +46,7 @@ fn bags_python_writes_decode_in_revisit_to_the_same_values() {
     let expected = expected();
     let expected_path = dir.path().join("expected.json");
     std::fs::write(&expected_path, Value::Object(expected.clone()).to_string()).unwrap();
-    interop("write", dir.path(), &expected_path);
+    revisit_testkit::interop("write", dir.path(), &expected_path);
     for bag in ["rosbags_db3", "rosbags_mcap", "mcap_ros2.mcap"] {
         let bag = Bag::open(&dir.path().join(bag)).unwrap();
         let mut decoded: Map<String, Value> = Map::new();
@@ -101,7 +88,7 @@ fn cdr_agrees_with_cyclone_dds_both_ways() {
     let expected_path = dir.path().join("expected.json");
     std::fs::write(&expected_path, Value::Object(expected.clone()).to_string()).unwrap();
     let out = dir.path().join("cyclonedds.json");
-    interop("cyclonedds", &out, &expected_path);
+    revisit_testkit::interop("cyclonedds", &out, &expected_path);
     let encoded: Map<String, Value> = serde_json::from_str(&std::fs::read_to_string(&out).unwrap()).unwrap();
     for name in types {
         let t = revisit_msgs::find(name).unwrap();

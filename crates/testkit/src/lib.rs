@@ -46,3 +46,22 @@ pub fn generated_models(script: &Path) -> tempfile::TempDir {
     assert!(status.success(), "{} failed", script.display());
     dir
 }
+
+/// Runs `crates/bag/tests/interop.py COMMAND PATH SPEC` (independent ROS 2 readers, writers and
+/// a Cyclone DDS peer) to its end, failing the test with its output if it fails.
+pub fn interop(command: &str, path: &Path, spec: &Path) {
+    let output = interop_command(command, path, spec).output().expect("start Python");
+    assert!(
+        output.status.success(),
+        "interop.py {command} failed:\n{}{}",
+        String::from_utf8_lossy(&output.stdout),
+        String::from_utf8_lossy(&output.stderr)
+    );
+}
+
+/// `interop.py COMMAND PATH SPEC` with the project's Python, not started.
+pub fn interop_command(command: &str, path: &Path, spec: &Path) -> Command {
+    let mut python = Command::new(python());
+    python.arg(repo().join("crates/bag/tests/interop.py")).arg(command).arg(path).arg(spec);
+    python
+}

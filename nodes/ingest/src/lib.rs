@@ -165,24 +165,23 @@ pub async fn run(node: &mut Node) -> Result<Summary, NodeError> {
 }
 
 async fn publish(node: &Node, out: &mut Outputs, events: Vec<VisitEvent<Pending>>) -> Result<(), NodeError> {
-    let failed = |e: String| NodeError::Dds(e);
     for event in events {
         match event {
             VisitEvent::Started { visit } => {
-                let message = SessionControl {
-                    header: node.header(""),
-                    command: SessionControl::START,
-                    session: visit.clone(),
-                    source: node.full_name(),
-                };
-                out.visits.async_publish(message).await.map_err(|e| failed(format!("{e:?}")))?;
+                say(node, &out.visits, SessionControl::START, &visit).await?;
                 node.log(LogLevel::Info, &format!("visit {visit} started"));
                 out.summary.visits.push(visit);
             }
             VisitEvent::Keyframe { visit, index, frame, .. } => {
                 let Pending { frame, camera_info, prior } = frame;
                 let stamp = frame.stamp;
-                let (format, data) = frame.image.into_file(Path::new(&visit)).map_err(|e| failed(e.to_string()))?;
+                let (format, data) = match frame.image.into_file(Path::new(&visit)) {
+                    Ok(file) => file,
+                    Err(error) => {
+                        node.log(LogLevel::Warn, &format!("keyframe {index} of {visit} dropped: {error}"));
+                        continue;
+                    }
+                };
                 let image_name = frame_file(&visit, index, format);
                 let header = revisit_msgs::std_msgs::Header { stamp, frame_id: camera_info.header.frame_id.clone() };
                 let image = CompressedImage {
@@ -200,22 +199,23 @@ async fn publish(node: &Node, out: &mut Outputs, events: Vec<VisitEvent<Pending>
                     has_prior: prior.is_some(),
                     prior: prior.unwrap_or_default(),
                 };
-                out.keyframes.async_publish(message).await.map_err(|e| failed(format!("{e:?}")))?;
+                out.keyframes.async_publish(message).await.map_err(|e| NodeError::Dds(format!("{e:?}")))?;
                 out.summary.keyframes += 1;
             }
             VisitEvent::Ended { visit, frames } => {
-                let message = SessionControl {
-                    header: node.header(""),
-                    command: SessionControl::END,
-                    session: visit.clone(),
-                    source: node.full_name(),
-                };
-                out.visits.async_publish(message).await.map_err(|e| failed(format!("{e:?}")))?;
+                say(node, &out.visits, SessionControl::END, &visit).await?;
                 node.log(LogLevel::Info, &format!("visit {visit} ended after {frames} frames"));
             }
         }
     }
     Ok(())
+}
+
+/// Publishes a visit's START or END.
+async fn say(node: &Node, visits: &Publisher<SessionControl>, command: u8, visit: &str) -> Result<(), NodeError> {
+    let message =
+        SessionControl { header: node.header(""), command, session: visit.to_owned(), source: node.full_name() };
+    visits.async_publish(message).await.map_err(|e| NodeError::Dds(format!("{e:?}")))
 }
 
 /// The node's time now (the bag's with `use_sim_time`), as a receive time.
