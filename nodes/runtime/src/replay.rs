@@ -136,7 +136,7 @@ pub async fn play(
         };
         let first = *first_ns.get_or_insert(message.log_time_ns);
         if options.rate > 0.0 {
-            let due = Duration::from_secs_f64((message.log_time_ns - first) as f64 * 1e-9 / options.rate);
+            let due = Duration::from_secs_f64(message.log_time_ns.saturating_sub(first) as f64 * 1e-9 / options.rate);
             if let Some(wait) = due.checked_sub(started.elapsed()) {
                 tokio::select! {
                     () = tokio::time::sleep(wait) => {}
