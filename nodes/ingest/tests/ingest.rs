@@ -80,7 +80,7 @@ async fn played_bag_gives_the_offline_keyframes() {
     });
     let mut player = Node::start_in(domain, "player", &RosArgs::default()).unwrap();
     let options = PlayOptions { wait_for_subscribers: true, ..Default::default() };
-    play(&mut player, &bag, &options, &|_| {}).await.unwrap();
+    play(&mut player, &bag, &options, &|_, _| {}).await.unwrap();
 
     let mut names = Vec::new();
     let mut keyframes = std::pin::pin!(keyframes.async_stream());

@@ -268,10 +268,7 @@ impl Node {
     /// The node's time: the latest `/clock` with `use_sim_time` (zero until one arrives), else
     /// the system clock.
     pub fn now(&self) -> Time {
-        match &self.sim_time_ns {
-            Some(ns) => Time::from_nanos(ns.load(Ordering::Relaxed)),
-            None => Time::from_nanos(wall_clock_ns()),
-        }
+        time_now(self.sim_time_ns.as_deref())
     }
 
     /// A header stamped now.
@@ -347,10 +344,7 @@ impl Node {
                 if status.is_empty() {
                     continue;
                 }
-                let stamp = match &sim_time {
-                    Some(ns) => Time::from_nanos(ns.load(Ordering::Relaxed)),
-                    None => Time::from_nanos(wall_clock_ns()),
-                };
+                let stamp = time_now(sim_time.as_deref());
                 let message = DiagnosticArray { header: Header { stamp, frame_id: String::new() }, status };
                 if publisher.async_publish(message).await.is_err() {
                     break;
@@ -389,6 +383,14 @@ impl Domain {
             .is_ok_and(|v| v.eq_ignore_ascii_case("localhost"))
             || std::env::var("ROS_LOCALHOST_ONLY").is_ok_and(|v| v.trim() == "1");
         Ok(Domain { id, localhost_only })
+    }
+}
+
+/// The latest `/clock` time when following one, else the system clock.
+fn time_now(sim_time_ns: Option<&AtomicI64>) -> Time {
+    match sim_time_ns {
+        Some(ns) => Time::from_nanos(ns.load(Ordering::Relaxed)),
+        None => Time::from_nanos(wall_clock_ns()),
     }
 }
 

@@ -61,12 +61,12 @@ pub enum ReplayError {
 }
 
 /// Publishes the bag's messages in log-time order at `rate` times their pace; `progress` is
-/// told each message published. Returns early (with what was done) when the node is stopped.
+/// told each message published, with the number to publish. Returns early (with what was done) when the node is stopped.
 pub async fn play(
     node: &mut Node,
     bag: &Bag,
     options: &PlayOptions,
-    progress: &dyn Fn(u64),
+    progress: &dyn Fn(u64, u64),
 ) -> Result<Played, ReplayError> {
     if !(options.rate >= 0.0 && options.rate.is_finite()) {
         return Err(ReplayError::Invalid(format!("--rate {} must be a number >= 0", options.rate)));
@@ -86,9 +86,11 @@ pub async fn play(
     };
     // Each bag topic's writer, under the name it is published as (remapped).
     let mut writers: BTreeMap<String, (String, RawPublisher)> = BTreeMap::new();
+    let mut total = 0;
     for stats in &info.topics {
         let topic = &stats.topic;
         if options.topics.is_empty() || options.topics.contains(&topic.name) {
+            total += stats.count;
             let published = node.names().resolve(&topic.name)?;
             // Latched when it was recorded latched (session control, maps): a late subscriber
             // still gets it. Reliable always: it matches best-effort subscribers too.
@@ -150,7 +152,7 @@ pub async fn play(
         }
         writer.async_write(raw, None).await.map_err(dds)?;
         played.published += 1;
-        progress(played.published);
+        progress(played.published, total);
     }
     for (_, writer) in writers.values() {
         let _ = tokio::time::timeout(Duration::from_secs(5), writer.async_wait_for_acknowledgments()).await;

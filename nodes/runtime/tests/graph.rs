@@ -49,7 +49,7 @@ async fn sim_time_diagnostics_and_remapped_replay() {
     let mut player = Node::start_in(domain, "player", &args(&["-r", "/stamps:=/auv/stamps"])).unwrap();
     let diagnostics = player.subscription::<DiagnosticArray>("/diagnostics", RELIABLE).unwrap();
     let options = PlayOptions { clock: true, wait_for_subscribers: true, ..Default::default() };
-    let played = play(&mut player, &bag, &options, &|_| {}).await.unwrap();
+    let played = play(&mut player, &bag, &options, &|_, _| {}).await.unwrap();
     assert_eq!(played.published, 5);
 
     let last = Time::from_nanos(START_NS + 400_000_000);

@@ -130,10 +130,13 @@ pub fn run(command: Command) -> Result<()> {
         Command::Play { bag, rate, clock, topics, wait_for_subscribers, delay, ros_args } => {
             let bag = Bag::open(&bag)?;
             let options = PlayOptions { rate, clock, topics, wait_for_subscribers, delay_s: delay };
-            let total = bag.info()?.message_count();
             let played = in_node("revisit_bag_player", &ros_args, async |node| {
-                let bar = crate::progress::bar(total, "play");
-                let played = revisit_node::play(node, &bag, &options, &|n| bar.set_position(n)).await;
+                let bar = crate::progress::bar(0, "play");
+                let progress = |done, total| {
+                    bar.set_length(total);
+                    bar.set_position(done);
+                };
+                let played = revisit_node::play(node, &bag, &options, &progress).await;
                 bar.finish_and_clear();
                 Ok(played?)
             })?;
