@@ -16,6 +16,7 @@ pub struct SessionControl {
     pub command: u8,
     pub session: String,
     pub source: String,
+    pub keyframes: u32,
 }
 
 impl SessionControl {
@@ -45,7 +46,10 @@ pub struct Features {
     pub method: String,
     pub roll_degrees: i32,
     pub count: u32,
+    pub width: u32,
+    pub height: u32,
     pub keypoints: Vec<f32>,
+    pub scores: Vec<f32>,
     pub descriptor_size: u32,
     pub descriptor_type: u8,
     #[serde(with = "serde_bytes")]
@@ -61,7 +65,8 @@ impl Features {
 pub struct PlaceCandidate {
     pub session: String,
     pub image_name: String,
-    pub similarity: f32,
+    pub distance: f32,
+    pub roll_degrees: i32,
 }
 
 /// The nearest images of earlier visits to one query image; see `PlaceCandidates.msg`.
@@ -84,8 +89,9 @@ pub struct CrossVisitMatches {
     pub method: String,
     pub roll_degrees: i32,
     pub matches: Vec<u32>,
-    pub inliers: u32,
-    pub fundamental: [f64; 9],
+    pub rolls_tried: Vec<i32>,
+    pub inliers_by_roll: Vec<u32>,
+    pub fell_back: bool,
 }
 
 #[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]

@@ -110,15 +110,26 @@ pub fn match_learned_pair(
         PairKind::Cross => options.roll_search,
         PairKind::Intra => RollSearch::Off,
     };
+    let found = match_with_rolls(matcher, a.0, b.0, search, options.roll_margin, &options.verify)?;
+    Ok(judge(&found, a, b, options))
+}
+
+/// [`accept`] on what the learned matcher found for a pair (matched here, or by a matcher node),
+/// given the same features and keypoints as [`match_learned_pair`].
+pub fn judge(
+    found: &CrossMatch,
+    a: (&LearnedFeatures, &[Keypoint]),
+    b: (&[(Roll, LearnedFeatures)], &[Keypoint]),
+    options: &CrossOptions,
+) -> LearnedPairMatch {
     let (b_by_roll, own_b) = b;
-    let found = match_with_rolls(matcher, a.0, b_by_roll, search, options.roll_margin, &options.verify)?;
     let positions_a = a.0.keypoints.clone();
     let positions_b: Vec<[f32; 2]> = b_by_roll
         .iter()
         .find(|(roll, _)| *roll == found.roll)
         .map(|(roll, features)| unrolled_keypoints(features, *roll).iter().map(|k| [k.x, k.y]).collect())
         .unwrap_or_default();
-    Ok(accept(&found, [positions_a, positions_b], [a.1, own_b], options))
+    accept(found, [positions_a, positions_b], [a.1, own_b], options)
 }
 
 /// The acceptance rule (see the module's documentation): anchors `found`'s

@@ -298,6 +298,7 @@ pub fn pack(
             command,
             session: session.name.clone(),
             source: session.dir.display().to_string(),
+            ..SessionControl::default()
         };
         writer.write(control, start_ns, &marker(SessionControl::START, start_ns)).map_err(bag_error)?;
         let mut last_ns = start_ns;

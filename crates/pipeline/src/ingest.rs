@@ -138,6 +138,17 @@ fn exif_focal(path: &Path, width: u32, height: u32) -> Option<f64> {
 /// least two images, every image header must be readable, every name valid,
 /// and each camera sub-folder must hold one image size.
 pub fn scan_session(spec: &SessionSpec) -> Result<SessionImages, PipelineError> {
+    let session = list_session(spec)?;
+    match session.len() {
+        0 => Err(PipelineError::NoImages { session: spec.name.clone(), dir: session.dir }),
+        1 => Err(PipelineError::OneImage { session: spec.name.clone(), dir: session.dir }),
+        _ => Ok(session),
+    }
+}
+
+/// [`scan_session`] without the count: a visit still coming in (the mapper
+/// node's) may hold one image, or none yet.
+pub fn list_session(spec: &SessionSpec) -> Result<SessionImages, PipelineError> {
     check_session_name(&spec.name).map_err(|e| PipelineError::Name(e.to_string()))?;
     let dir = std::fs::canonicalize(&spec.dir).map_err(io(&spec.dir))?;
     let (files, folders) = list(&dir)?;
@@ -188,11 +199,7 @@ pub fn scan_session(spec: &SessionSpec) -> Result<SessionImages, PipelineError> 
                 .map_err(|e| PipelineError::Name(format!("{}: {e}", dir.join(file).display())))?;
         }
     }
-    match session.len() {
-        0 => Err(PipelineError::NoImages { session: spec.name.clone(), dir }),
-        1 => Err(PipelineError::OneImage { session: spec.name.clone(), dir }),
-        _ => Ok(session),
-    }
+    Ok(session)
 }
 
 #[cfg(test)]

@@ -27,6 +27,7 @@ pub mod keyframes;
 pub mod learned;
 pub mod locate;
 pub mod mapping;
+pub mod messages;
 pub mod options;
 pub mod report;
 pub mod stages;

@@ -7,12 +7,16 @@ use std::time::Instant;
 use revisit_core::{Camera, CameraId, CameraModel, ImageId, ImageName};
 use revisit_store::Store;
 
-use crate::cross::{self, Places};
+use revisit_matching::cross::judge;
+use revisit_matching::CrossMatch;
+
+use crate::cross::{self, LearnedPair, Places};
 use crate::export;
 use crate::ingest::SessionImages;
 use crate::learned::Learned;
 use crate::locate::Tools;
 use crate::mapping::{self, MappingOutcome};
+use crate::messages::FeaturesRecord;
 use crate::options::{CameraSpec, ReconstructOptions};
 use crate::report::{CameraReport, CrossReport, MappingReport, Report};
 use crate::stages::{self, LearnedKeypoints};
@@ -138,9 +142,14 @@ impl Workspace {
 
     /// Adds a session (a new visit goes after every stored one; a stored
     /// one keeps its place), its cameras and its images to the store.
+    /// Adding a session again with more images (a visit still coming in, as
+    /// the mapper node sees it) adds those; it must come from the same folder.
     pub fn add_session(&mut self, images: SessionImages) -> Result<&Session, PipelineError> {
-        if self.sessions.iter().any(|s| s.name == images.name) {
-            return Err(PipelineError::DuplicateSession(images.name));
+        if let Some(at) = self.sessions.iter().position(|s| s.name == images.name) {
+            if self.sessions[at].dir != images.dir {
+                return Err(PipelineError::DuplicateSession(images.name));
+            }
+            self.sessions.remove(at);
         }
         let record = self.store.ensure_session(&images.name, &images.dir.display().to_string())?;
         let mut cameras = BTreeMap::new();
@@ -195,6 +204,60 @@ impl Workspace {
         let at = self.sessions.partition_point(|s| s.visit < session.visit);
         self.sessions.insert(at, session);
         Ok(&self.sessions[at])
+    }
+
+    /// Holds the cameras under `key` (`SESSION/CAMERA`, `SESSION` or `""`, as
+    /// [`crate::options::CameraOptions::calibrated`]) at `spec`'s intrinsics:
+    /// for cameras that say their calibration as their images arrive (a
+    /// `CameraInfo`). Applies to cameras stored from now on.
+    pub fn calibrate(&mut self, key: &str, spec: CameraSpec) {
+        self.options.cameras.calibrated.insert(key.to_owned(), spec);
+    }
+
+    /// Stores one image's features (SIFT, or learned at one roll) computed
+    /// elsewhere (the features node), unless the store has them. `Ok(false)`:
+    /// no image `session/file` is stored yet.
+    pub fn add_features(&mut self, image: &str, record: &FeaturesRecord) -> Result<bool, PipelineError> {
+        let Some(&id) = self.store.image_ids()?.get(image) else { return Ok(false) };
+        match record {
+            FeaturesRecord::Sift(features) => {
+                if !self.store.images_with_features()?.contains(&id) {
+                    self.store.write_features(id, features)?;
+                }
+            }
+            FeaturesRecord::Learned { method, roll, features } => {
+                if !self.store.learned_feature_keys(method)?.contains(&(id, roll.degrees())) {
+                    self.store.write_learned_features(id, method, roll.degrees(), features)?;
+                }
+            }
+        }
+        Ok(true)
+    }
+
+    /// Judges and stores what the learned matcher found for cross-visit pairs
+    /// elsewhere (a matcher node), in pair order, skipping stored pairs: the
+    /// same acceptance, anchoring and writes as [`Workspace::match_learned`],
+    /// so the store ends as if matched here. Every image's learned keypoints
+    /// at roll 0 must be stored. Returns how many pairs were stored.
+    pub fn add_cross_matches(&mut self, mut found: Vec<(LearnedPair, CrossMatch)>) -> Result<usize, PipelineError> {
+        let method = self.options.learned.name();
+        cross::register_learned_keypoints(&mut self.store, method, &self.sessions)?;
+        found.sort_by_key(|(pair, _)| *pair);
+        let finished = self.store.matched_pairs()?;
+        let mut stored = 0;
+        for (pair, found) in found {
+            if finished.contains(&revisit_core::pair_id(pair.image_id1, pair.image_id2)) {
+                continue;
+            }
+            let a = self.store.read_learned_features(pair.image_id1, method, 0)?;
+            let b = [(found.roll, self.store.read_learned_features(pair.image_id2, method, found.roll.degrees())?)];
+            let own_a = self.store.read_keypoints(pair.image_id1)?;
+            let own_b = self.store.read_keypoints(pair.image_id2)?;
+            let judged = judge(&found, (&a, &own_a), (&b, &own_b), &self.options.learned_matching);
+            cross::write_learned_pair(&mut self.store, &pair, method, &judged)?;
+            stored += 1;
+        }
+        Ok(stored)
     }
 
     /// Runs every stage the options ask for, then maps, exports and writes

@@ -226,14 +226,17 @@ impl Store {
 
     /// Adds images (COLMAP names `session/file`) with their camera, keeping
     /// those already there; returns every image's id by name.
+    /// Only new names are inserted, so ids run without gaps in the order
+    /// images were first added, however often a visit is added again.
     pub fn ensure_images(&mut self, names: &[String], camera_id: CameraId) -> Result<BTreeMap<String, ImageId>> {
+        let stored = self.image_ids()?;
         let path = self.path.clone();
         let sql = |source| StoreError::Sqlite { path: path.clone(), source };
         let tx = self.conn.transaction().map_err(sql)?;
         {
             let mut insert =
                 tx.prepare("INSERT OR IGNORE INTO images (name, camera_id) VALUES (?1, ?2)").map_err(sql)?;
-            for name in names {
+            for name in names.iter().filter(|name| !stored.contains_key(*name)) {
                 insert.execute(params![name, camera_id]).map_err(sql)?;
             }
         }

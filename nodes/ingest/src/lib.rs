@@ -18,7 +18,7 @@ use revisit_msgs::geometry_msgs::PoseWithCovariance;
 use revisit_msgs::nav_msgs::Odometry;
 use revisit_msgs::revisit_msgs::{Keyframe, SessionControl};
 use revisit_msgs::sensor_msgs::{CameraInfo, CompressedImage, Image};
-use revisit_node::{History, LogLevel, Node, NodeError, Publisher, LATCHED, RELIABLE, SENSOR_DATA};
+use revisit_node::{History, LogLevel, Node, NodeError, Publisher, Stage, LATCHED, SENSOR_DATA, WORK_QUEUE};
 use revisit_pipeline::bags::{frame_file, Frame};
 use revisit_pipeline::keyframes::{KeyframeOptions, VisitEvent, VisitStream, DEFAULT_MIN_OVERLAP};
 
@@ -34,6 +34,13 @@ pub struct Summary {
     pub visits: Vec<String>,
 }
 
+impl std::fmt::Display for Summary {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        let Summary { frames, keyframes, dropped, visits } = self;
+        write!(f, "{frames} frames, {keyframes} keyframes, {dropped} dropped, visits {visits:?}")
+    }
+}
+
 struct Pending {
     frame: Frame,
     camera_info: CameraInfo,
@@ -44,6 +51,8 @@ struct Outputs {
     keyframes: Publisher<Keyframe>,
     visits: Publisher<SessionControl>,
     camera: String,
+    /// Keyframes published in the visit in progress (said with its END).
+    visit_keyframes: u32,
     summary: Summary,
 }
 
@@ -58,9 +67,6 @@ pub async fn run(node: &mut Node) -> Result<Summary, NodeError> {
         distance_m: node.param("keyframe.distance_m", None)?,
     };
     keyframes.check().map_err(|reason| NodeError::Parameter { name: "keyframe.*".into(), reason })?;
-    let mut stream: VisitStream<Pending> =
-        VisitStream::new(session.as_deref().unwrap_or("visit"), split_gap_s, keyframes);
-    let driven_by_control = session.is_none();
 
     let images = node.subscription::<Image>("image", SENSOR_DATA)?;
     let compressed = node.subscription::<CompressedImage>("image/compressed", SENSOR_DATA)?;
@@ -71,12 +77,18 @@ pub async fn run(node: &mut Node) -> Result<Summary, NodeError> {
     let control =
         node.subscription::<SessionControl>("/revisit/session", LATCHED.history(History::KeepLast { depth: 10 }))?;
     let mut out = Outputs {
-        keyframes: node.publisher::<Keyframe>("keyframes", RELIABLE)?,
-        visits: node.publisher::<SessionControl>("visits", LATCHED)?,
+        keyframes: node.publisher::<Keyframe>("keyframes", WORK_QUEUE)?,
+        visits: node.publisher::<SessionControl>("visits", WORK_QUEUE)?,
         camera: node.param("camera", "cam0".to_owned())?,
+        visit_keyframes: 0,
         summary: Summary::default(),
     };
-    let stage = node.stage("frames");
+    let mut ingest = Ingest {
+        stream: VisitStream::new(session.as_deref().unwrap_or("visit"), split_gap_s, keyframes),
+        driven_by_control: session.is_none(),
+        stage: node.stage("frames"),
+        last_stamp_ns: None,
+    };
     let stopped = node.stopped();
     let mut stopped = std::pin::pin!(stopped);
     let (mut images, mut compressed) =
@@ -85,11 +97,15 @@ pub async fn run(node: &mut Node) -> Result<Summary, NodeError> {
     let mut control = std::pin::pin!(control.async_stream());
     let mut camera_info = CameraInfo::default();
     let mut prior: Option<PoseWithCovariance> = None;
-    let mut last_stamp_ns: Option<u64> = None;
     node.log(
         LogLevel::Info,
         &format!("ingesting {}", session.as_deref().unwrap_or("visits named by /revisit/session")),
     );
+    // Frames that came before the camera's first CameraInfo wait for it (a driver publishes both
+    // with one stamp, in either order), up to WAIT_FOR_INFO frames: a camera without CameraInfo
+    // is then taken as uncalibrated.
+    const WAIT_FOR_INFO: usize = 5;
+    let mut waiting: Vec<Result<Frame, String>> = Vec::new();
     loop {
         let frame = tokio::select! {
             () = &mut stopped => break,
@@ -97,18 +113,22 @@ pub async fn run(node: &mut Node) -> Result<Summary, NodeError> {
             Some(Ok((image, _))) = compressed.next() => Frame::compressed(image, received_ns(node)),
             Some(Ok((info, _))) = infos.next() => {
                 camera_info = info;
+                let frames = std::mem::take(&mut waiting);
+                offer(node, &mut out, &mut ingest, frames, &camera_info, prior).await?;
                 continue;
             }
             Some(Ok((message, _))) = odometry.next() => {
                 let p = message.pose.pose.position;
-                stream.position([p.x, p.y, p.z]);
+                ingest.stream.position([p.x, p.y, p.z]);
                 prior = Some(message.pose);
                 continue;
             }
             Some(Ok((message, _))) = control.next() => {
+                let frames = std::mem::take(&mut waiting);
+                offer(node, &mut out, &mut ingest, frames, &camera_info, prior).await?;
                 let events = match message.command {
-                    SessionControl::START => stream.start(&message.session),
-                    SessionControl::END => stream.end(),
+                    SessionControl::START => ingest.stream.start(&message.session),
+                    SessionControl::END => ingest.stream.end(),
                     other => {
                         node.log(LogLevel::Warn, &format!("session control command {other} is neither START nor END"));
                         continue;
@@ -118,57 +138,88 @@ pub async fn run(node: &mut Node) -> Result<Summary, NodeError> {
                 continue;
             }
         };
-        stage.received();
+        waiting.push(frame);
+        if camera_info.k == [0.0; 9] && waiting.len() <= WAIT_FOR_INFO {
+            continue;
+        }
+        let frames = std::mem::take(&mut waiting);
+        offer(node, &mut out, &mut ingest, frames, &camera_info, prior).await?;
+    }
+    let frames = std::mem::take(&mut waiting);
+    offer(node, &mut out, &mut ingest, frames, &camera_info, prior).await?;
+    let events = ingest.stream.end();
+    publish(node, &mut out, events).await?;
+    Ok(out.summary)
+}
+
+/// The visit stream and what it needs to judge frames.
+struct Ingest {
+    stream: VisitStream<Pending>,
+    /// Frames outside a visit are dropped when visits are named by session control.
+    driven_by_control: bool,
+    stage: Stage,
+    last_stamp_ns: Option<u64>,
+}
+
+/// Offers frames to the visit stream, publishing the keyframes it keeps.
+async fn offer(
+    node: &Node,
+    out: &mut Outputs,
+    ingest: &mut Ingest,
+    frames: Vec<Result<Frame, String>>,
+    camera_info: &CameraInfo,
+    prior: Option<PoseWithCovariance>,
+) -> Result<(), NodeError> {
+    for frame in frames {
+        ingest.stage.received();
         out.summary.frames += 1;
         let started = Instant::now();
         let frame = match frame {
-            Ok(frame) if !(driven_by_control && stream.visit().is_none()) => frame,
+            Ok(frame) if !(ingest.driven_by_control && ingest.stream.visit().is_none()) => frame,
             Ok(_) => {
-                stage.dropped(1);
+                ingest.stage.dropped(1);
                 out.summary.dropped += 1;
                 continue;
             }
             Err(why) => {
                 node.log(LogLevel::Warn, &format!("frame dropped: {why}"));
-                stage.dropped(1);
+                ingest.stage.dropped(1);
                 out.summary.dropped += 1;
                 continue;
             }
         };
         let time_ns = frame.time_ns(frame.log_time_ns);
-        if last_stamp_ns == Some(time_ns) {
+        if ingest.last_stamp_ns == Some(time_ns) {
             // The same frame delivered twice (RustDDS repeats a large fragmented sample now and
             // then): dropped.
-            stage.dropped(1);
+            ingest.stage.dropped(1);
             out.summary.dropped += 1;
             continue;
         }
-        last_stamp_ns = Some(time_ns);
-        let origin = Path::new("image");
-        let image = match frame.decode(origin) {
+        ingest.last_stamp_ns = Some(time_ns);
+        let image = match frame.decode(Path::new("image")) {
             Ok(image) => image,
             Err(error) => {
                 node.log(LogLevel::Warn, &format!("frame dropped: {error}"));
-                stage.dropped(1);
+                ingest.stage.dropped(1);
                 out.summary.dropped += 1;
                 continue;
             }
         };
         let pending = Pending { frame, camera_info: camera_info.clone(), prior };
-        let events = stream.frame(pending, time_ns, &image);
-        publish(node, &mut out, events).await?;
-        stage.done(started.elapsed());
+        let events = ingest.stream.frame(pending, time_ns, &image);
+        publish(node, out, events).await?;
+        ingest.stage.done(started.elapsed());
     }
-    let events = stream.end();
-    publish(node, &mut out, events).await?;
-    Ok(out.summary)
+    Ok(())
 }
 
 async fn publish(node: &Node, out: &mut Outputs, events: Vec<VisitEvent<Pending>>) -> Result<(), NodeError> {
     for event in events {
         match event {
             VisitEvent::Started { visit } => {
-                say(node, &out.visits, SessionControl::START, &visit).await?;
+                out.visit_keyframes = 0;
+                say(node, &out.visits, SessionControl::START, &visit, 0).await?;
                 node.log(LogLevel::Info, &format!("visit {visit} started"));
                 out.summary.visits.push(visit);
             }
@@ -201,9 +252,10 @@ async fn publish(node: &Node, out: &mut Outputs, events: Vec<VisitEvent<Pending>
                 };
                 out.keyframes.async_publish(message).await.map_err(|e| NodeError::Dds(format!("{e:?}")))?;
                 out.summary.keyframes += 1;
+                out.visit_keyframes += 1;
             }
             VisitEvent::Ended { visit, frames } => {
-                say(node, &out.visits, SessionControl::END, &visit).await?;
+                say(node, &out.visits, SessionControl::END, &visit, out.visit_keyframes).await?;
                 node.log(LogLevel::Info, &format!("visit {visit} ended after {frames} frames"));
             }
         }
@@ -211,10 +263,21 @@ async fn publish(node: &Node, out: &mut Outputs, events: Vec<VisitEvent<Pending>
     Ok(())
 }
 
-/// Publishes a visit's START or END.
-async fn say(node: &Node, visits: &Publisher<SessionControl>, command: u8, visit: &str) -> Result<(), NodeError> {
-    let message =
-        SessionControl { header: node.header(""), command, session: visit.to_owned(), source: node.full_name() };
+/// Publishes a visit's START or END (with the visit's keyframe count).
+async fn say(
+    node: &Node,
+    visits: &Publisher<SessionControl>,
+    command: u8,
+    visit: &str,
+    keyframes: u32,
+) -> Result<(), NodeError> {
+    let message = SessionControl {
+        header: node.header(""),
+        command,
+        session: visit.to_owned(),
+        source: node.full_name(),
+        keyframes,
+    };
     visits.async_publish(message).await.map_err(|e| NodeError::Dds(format!("{e:?}")))
 }
 

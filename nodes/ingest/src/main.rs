@@ -9,14 +9,7 @@ fn main() -> anyhow::Result<()> {
         let mut node = Node::start(revisit_ingest_node::NAME, &args)?;
         let summary = revisit_ingest_node::run(&mut node).await;
         node.shutdown().await;
-        let summary = summary?;
-        tracing::info!(
-            "{} frames, {} keyframes, {} dropped, visits {:?}",
-            summary.frames,
-            summary.keyframes,
-            summary.dropped,
-            summary.visits
-        );
+        tracing::info!("{}", summary?);
         Ok(())
     })
 }

@@ -39,6 +39,7 @@ fn sliding_bag(dir: &std::path::Path) -> Bag {
         command,
         session: "a".into(),
         source: "test".into(),
+        ..SessionControl::default()
     };
     writer.write(control, T0_NS, &say(SessionControl::START, T0_NS)).unwrap();
     for i in 0..24u32 {

@@ -9,6 +9,7 @@
 //! time publish and read raw CDR.
 
 mod args;
+mod journal;
 mod names;
 mod node;
 mod params;
@@ -17,8 +18,11 @@ mod replay;
 mod stats;
 
 pub use args::{read_params_file, ParameterSource, Remap, RosArgs};
+pub use journal::Journal;
 pub use names::Names;
-pub use node::{DiscoveredTopic, Domain, Node, RawPublisher, RawSubscription, LATCHED, RELIABLE, SENSOR_DATA};
+pub use node::{
+    DiscoveredTopic, Domain, Node, RawPublisher, RawSubscription, LATCHED, RELIABLE, SENSOR_DATA, WORK_QUEUE,
+};
 pub use params::{Endpoint, Parameters};
 pub use raw::{RawAdapter, RawCdr};
 pub use replay::{play, record, PlayOptions, Played, RecordOptions, ReplayError};
@@ -28,9 +32,10 @@ pub use ros2_client::{Publisher, QosProfile, Subscription};
 pub use stats::Stage;
 
 /// Log filter directives that keep DDS's chatter off the terminal: RustDDS narrates discovery at
-/// info level and complains about leaving multicast groups it never joined (loopback only).
+/// info level, warns about every large message it fragments, and complains about leaving
+/// multicast groups it never joined (loopback only).
 pub const QUIET_DDS: &str =
-    "rustdds=warn,ros2_client=warn,ros2_client::distributions=error,rustdds::network::udp_listener=off";
+    "rustdds=error,ros2_client=warn,rosout_raw=off,ros2_client::distributions=error,rustdds::network::udp_listener=off";
 
 /// Terminal logging for a node process: info and up, `RUST_LOG` overriding.
 pub fn init_logging() {
@@ -51,4 +56,10 @@ pub enum NodeError {
     /// DDS (RustDDS) refused.
     #[error("DDS: {0}")]
     Dds(String),
+    /// The node's persistent state could not be read or written.
+    #[error("state: {0}")]
+    State(String),
+    /// The node's work failed (the message says on what).
+    #[error("{0}")]
+    Work(String),
 }

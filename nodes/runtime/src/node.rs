@@ -35,6 +35,11 @@ pub const LATCHED: QosProfile = QosProfile::publisher_default()
     .durability(Durability::TransientLocal)
     .reliability(Reliability::Reliable { when_full: WhenFull::DEFAULT });
 
+/// Reliable and transient-local, keep the last 256: a work queue between nodes. A subscriber that
+/// starts late or restarts receives the backlog the publisher still holds, and skips what its own
+/// state says is done; a reader that falls behind slows the writer instead of losing items.
+pub const WORK_QUEUE: QosProfile = LATCHED.history(History::KeepLast { depth: 256 });
+
 /// A raw DDS writer for a type met at run time.
 pub type RawPublisher = no_key::DataWriter<RawCdr, RawAdapter>;
 /// A raw DDS reader for a type met at run time.

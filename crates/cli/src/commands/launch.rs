@@ -7,7 +7,7 @@
 //! namespace: /revisit              # optional, every node's namespace
 //! parameters: {use_sim_time: true} # optional, given to every node
 //! nodes:
-//!   - node: ingest                 # which node (Revisit has: ingest)
+//!   - node: ingest                 # which node (Revisit has: ingest, features, mapper)
 //!     name: ingest                 # optional, the node's name
 //!     parameters: {keyframe.min_overlap: 0.7}
 //!     remappings: {image/compressed: /camera/image_raw/compressed}
@@ -65,11 +65,11 @@ fn one_second() -> f64 {
 }
 
 /// The nodes Revisit has (each also an executable `revisit-KIND`, and `revisit node KIND`).
-const NODES: [&str; 1] = ["ingest"];
+const NODES: [&str; 3] = ["ingest", "features", "mapper"];
 
 #[derive(clap::Args)]
 pub struct NodeArgs {
-    /// Which node: ingest.
+    /// Which node: ingest, features or mapper.
     kind: String,
     /// ROS arguments: --ros-args -p NAME:=VALUE -r FROM:=TO -r __ns:=/NS ...
     #[arg(long = "ros-args", num_args = 0.., allow_hyphen_values = true, value_name = "ARG")]
@@ -93,21 +93,14 @@ pub fn run_node(args: NodeArgs) -> Result<()> {
 
 /// A node's loop, by kind.
 async fn run_kind(kind: &str, node: &mut Node) -> Result<()> {
-    match kind {
-        "ingest" => {
-            let summary = revisit_ingest_node::run(node).await?;
-            tracing::info!(
-                "{}: {} frames, {} keyframes, {} dropped, visits {:?}",
-                node.full_name(),
-                summary.frames,
-                summary.keyframes,
-                summary.dropped,
-                summary.visits
-            );
-            Ok(())
-        }
+    let summary = match kind {
+        "ingest" => revisit_ingest_node::run(node).await?.to_string(),
+        "features" => revisit_features_node::run(node).await?.to_string(),
+        "mapper" => revisit_mapper_node::run(node).await?.to_string(),
         other => bail!("no node {other:?}"),
-    }
+    };
+    tracing::info!("{}: {summary}", node.full_name());
+    Ok(())
 }
 
 /// One node to start: its name and its `--ros-args`.

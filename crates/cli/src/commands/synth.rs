@@ -188,6 +188,7 @@ fn write_bag(
         command,
         session: session.name.clone(),
         source: "revisit synth".into(),
+        ..SessionControl::default()
     };
     bag.write(control, start_ns, &marker(SessionControl::START, start_ns))?;
     let (fx, fy, cx, cy) = (intrinsics.fx, intrinsics.fy, intrinsics.cx, intrinsics.cy);

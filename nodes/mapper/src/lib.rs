@@ -1,0 +1,473 @@
+//! The mapper node: owns the store (a `revisit reconstruct` work folder) and runs the joint
+//! reconstruction when a visit ends. Keyframes (`keyframes`), their features (`features`), the visits'
+//! START/END (`visits`), place candidates (`places/candidates`) and what the matchers found
+//! (`matches`) come in; the map goes out, latched for late subscribers such as Foxglove:
+//! `map/cloud` (PointCloud2 with x, y, z, rgb and session), `map/cameras` (PoseArray),
+//! `map/path/<visit>` (one nav_msgs/Path per visit) and `map/status` (MapStatus: what `report.json`
+//! holds). The work folder holds what `revisit reconstruct` writes (model/, points.ply, poses.csv,
+//! report.json), so the map opens in COLMAP too.
+//!
+//! A visit is mapped once its END has come (with its keyframe count) and everything it needs has:
+//! every keyframe and its features and, with `places:=true` (the default when visits are linked by
+//! place recognition), each keyframe's candidates and a matcher's answer for every candidate pair.
+//! Then [`Workspace::add_cross_matches`] stores the answers as `reconstruct` would have, and
+//! [`Workspace::run`] does the rest (matching within the visit, mapping, export), computing
+//! nothing the graph already delivered. With `places:=false` the mapper finds and matches the
+//! cross-visit pairs itself.
+//!
+//! Parameters: `work_dir` (default `revisit-state/mapper`), `options_file` (a JSON file of the
+//! reconstruction's options, as `report.json` shows them; default the defaults), `cross` (the
+//! strategy, overriding the file's), `places`, `frame_id` (the map's frame, default `map`),
+//! `python`, `models`.
+//!
+//! Restartable: keyframes are files in the work folder, features are in the store, and every
+//! other input is journalled (`mapper.journal`) before it is acted on; a restarted mapper maps
+//! what it would have mapped.
+
+use std::collections::{BTreeMap, BTreeSet};
+use std::path::{Path, PathBuf};
+
+use futures::StreamExt;
+use revisit_core::PairKind;
+use revisit_msgs::geometry_msgs::PoseArray;
+use revisit_msgs::nav_msgs::Path as PathMessage;
+use revisit_msgs::revisit_msgs::{CrossVisitMatches, Features, Keyframe, MapStatus, PlaceCandidates, SessionControl};
+use revisit_msgs::sensor_msgs::PointCloud2;
+use revisit_msgs::std_msgs::Header;
+use revisit_node::{Journal, LogLevel, Node, NodeError, Publisher, LATCHED, WORK_QUEUE};
+use revisit_pipeline::cross::LearnedPair;
+use revisit_pipeline::ingest::{list_session, SessionSpec};
+use revisit_pipeline::locate::Tools;
+use revisit_pipeline::messages::{self, MapMessages};
+use revisit_pipeline::{Cancel, CrossStrategy, ReconstructOptions, Report, Silent, Workspace};
+use serde::{Deserialize, Serialize};
+
+/// The node's name unless remapped.
+pub const NAME: &str = "mapper";
+
+/// What a run did.
+#[derive(Debug, Default, Clone, PartialEq, Eq)]
+pub struct Summary {
+    pub keyframes: u64,
+    /// Visits mapped, in order.
+    pub mapped: Vec<String>,
+}
+
+impl std::fmt::Display for Summary {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(f, "{} keyframes kept, visits mapped {:?}", self.keyframes, self.mapped)
+    }
+}
+
+/// A journal line: an input the mapper acted on, or a visit it mapped.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+#[serde(tag = "kind", rename_all = "snake_case")]
+enum Entry {
+    End { session: String, keyframes: u32 },
+    Candidates { image: String, candidates: Vec<String> },
+    Found(CrossVisitMatches),
+    Mapped { session: String },
+}
+
+/// What the journal says.
+#[derive(Default)]
+struct Inputs {
+    /// Visits ended, with their keyframe counts.
+    ended: BTreeMap<String, u32>,
+    /// Each query image's candidates (`session/file` names).
+    candidates: BTreeMap<String, Vec<String>>,
+    /// Matchers' answers by (earlier image, later image).
+    found: BTreeMap<(String, String), CrossVisitMatches>,
+    mapped: BTreeSet<String>,
+}
+
+impl Inputs {
+    fn apply(&mut self, entry: Entry) {
+        match entry {
+            Entry::End { session, keyframes } => {
+                self.ended.insert(session, keyframes);
+            }
+            Entry::Candidates { image, candidates } => {
+                self.candidates.insert(image, candidates);
+            }
+            Entry::Found(found) => {
+                let key = (full(&found.session1, &found.image_name1), full(&found.session2, &found.image_name2));
+                self.found.insert(key, found);
+            }
+            Entry::Mapped { session } => {
+                self.mapped.insert(session);
+            }
+        }
+    }
+}
+
+fn full(session: &str, file: &str) -> String {
+    format!("{session}/{file}")
+}
+
+struct Outputs {
+    header: Header,
+    cloud: Publisher<PointCloud2>,
+    cameras: Publisher<PoseArray>,
+    status: Publisher<MapStatus>,
+    paths: BTreeMap<String, Publisher<PathMessage>>,
+}
+
+struct Mapper {
+    workspace: Workspace,
+    journal: Journal,
+    inputs: Inputs,
+    /// Features whose keyframe has not arrived or whose visit waits for the one before to be
+    /// mapped (topics are not ordered with each other).
+    waiting: BTreeMap<String, Vec<Features>>,
+    /// Visits whose keyframes came while an earlier one was not mapped yet, in arrival order:
+    /// their keyframes wait on disk, out of the store, so that each visit is mapped with the
+    /// visits before it only (as `reconstruct` adding one visit at a time would).
+    queued: Vec<String>,
+    /// Whether cross-visit pairs come from the places and matcher nodes.
+    places: bool,
+    summary: Summary,
+}
+
+/// Runs the mapper node until SIGINT or SIGTERM (a mapping in progress is stopped; the next start
+/// maps again).
+pub async fn run(node: &mut Node) -> Result<Summary, NodeError> {
+    let parameter = |name: &str, reason: String| NodeError::Parameter { name: name.into(), reason };
+    let work_dir: PathBuf = node.param("work_dir", PathBuf::from("revisit-state/mapper"))?;
+    let mut options = match node.param::<Option<PathBuf>>("options_file", None)? {
+        Some(path) => {
+            let text = std::fs::read_to_string(&path)
+                .map_err(|e| parameter("options_file", format!("{}: {e}", path.display())))?;
+            serde_json::from_str::<ReconstructOptions>(&text)
+                .map_err(|e| parameter("options_file", format!("{}: {e}", path.display())))?
+        }
+        None => ReconstructOptions::default(),
+    };
+    if let Some(name) = node.param::<Option<String>>("cross", None)? {
+        options.cross = CrossStrategy::from_name(&name).ok_or_else(|| {
+            let known: Vec<&str> = CrossStrategy::ALL.iter().map(|s| s.name()).collect();
+            parameter("cross", format!("{name:?} is not one of {known:?}"))
+        })?;
+    }
+    let places = node.param("places", options.cross.places())?;
+    let tools = Tools { python: node.param("python", None)?, models: node.param("models", None)?, ..Tools::default() };
+    let frame_id: String = node.param("frame_id", "map".to_owned())?;
+    let work = |e: revisit_pipeline::PipelineError| NodeError::Work(e.to_string());
+
+    let mut mapper = tokio::task::block_in_place(|| Mapper::open(&work_dir, options, tools, places))?;
+    let keyframes = node.subscription::<Keyframe>("keyframes", WORK_QUEUE)?;
+    let features = node.subscription::<Features>("features", WORK_QUEUE)?;
+    let visits = node.subscription::<SessionControl>("visits", WORK_QUEUE)?;
+    let candidates = node.subscription::<PlaceCandidates>("places/candidates", WORK_QUEUE)?;
+    let found = node.subscription::<CrossVisitMatches>("matches", WORK_QUEUE)?;
+    let mut out = Outputs {
+        header: Header { frame_id, ..Header::default() },
+        cloud: node.publisher("map/cloud", LATCHED)?,
+        cameras: node.publisher("map/cameras", LATCHED)?,
+        status: node.publisher("map/status", LATCHED)?,
+        paths: BTreeMap::new(),
+    };
+    let stage = node.stage("inputs");
+    let cancel = Cancel::new();
+    {
+        let (cancel, stopped) = (cancel.clone(), node.stopped());
+        tokio::spawn(async move {
+            stopped.await;
+            cancel.cancel();
+        });
+    }
+    // A restarted mapper shows the map it has.
+    if mapper.workspace.dir().join("report.json").exists() {
+        let outputs = tokio::task::block_in_place(|| map_outputs(&mapper.workspace, node, &out))?;
+        publish_map(node, &mut out, outputs).await?;
+    }
+    let stopped = node.stopped();
+    let mut stopped = std::pin::pin!(stopped);
+    let (mut keyframes, mut features) =
+        (std::pin::pin!(keyframes.async_stream()), std::pin::pin!(features.async_stream()));
+    let (mut visits, mut candidates) =
+        (std::pin::pin!(visits.async_stream()), std::pin::pin!(candidates.async_stream()));
+    let mut found = std::pin::pin!(found.async_stream());
+    node.log(LogLevel::Info, &format!("mapping into {}", work_dir.display()));
+    loop {
+        let result = tokio::select! {
+            () = &mut stopped => break,
+            Some(Ok((keyframe, _))) = keyframes.next() => tokio::task::block_in_place(|| mapper.keyframe(&keyframe)),
+            Some(Ok((message, _))) = features.next() => tokio::task::block_in_place(|| mapper.features(message)),
+            Some(Ok((message, _))) = visits.next() => match message.command {
+                SessionControl::END => mapper.record(Entry::End { session: message.session, keyframes: message.keyframes }),
+                _ => Ok(()),
+            },
+            Some(Ok((message, _))) = candidates.next() => {
+                let image = full(&message.session, &message.image_name);
+                let candidates = message.candidates.iter().map(|c| full(&c.session, &c.image_name)).collect();
+                mapper.record(Entry::Candidates { image, candidates })
+            }
+            Some(Ok((message, _))) = found.next() => mapper.record(Entry::Found(message)),
+        };
+        stage.received();
+        if let Err(error) = result {
+            // A bad message is said and dropped; the store is untouched by it.
+            node.log(LogLevel::Warn, &error.to_string());
+            stage.dropped(1);
+            continue;
+        }
+        while let Some(session) = tokio::task::block_in_place(|| mapper.ready()).map_err(work)? {
+            node.log(LogLevel::Info, &format!("visit {session} is complete: mapping"));
+            let _ =
+                out.status.async_publish(status(&out.header, MapStatus::MAPPING, &format!("mapping {session}"))).await;
+            match tokio::task::block_in_place(|| mapper.map(&session, &cancel)) {
+                Ok(report) => {
+                    node.log(
+                        LogLevel::Info,
+                        &format!(
+                            "visit {session} mapped: {} model(s), unlinked {:?}",
+                            report.models, report.unlinked_sessions
+                        ),
+                    );
+                    let outputs = tokio::task::block_in_place(|| map_outputs(&mapper.workspace, node, &out))?;
+                    publish_map(node, &mut out, outputs).await?;
+                }
+                Err(revisit_pipeline::PipelineError::Cancelled) => break,
+                Err(error) => {
+                    node.log(LogLevel::Error, &format!("mapping {session} failed: {error}"));
+                    let _ = out.status.async_publish(status(&out.header, MapStatus::FAILED, &error.to_string())).await;
+                    return Err(work(error));
+                }
+            }
+        }
+    }
+    Ok(mapper.summary)
+}
+
+fn status(header: &Header, state: u8, message: &str) -> MapStatus {
+    MapStatus { header: header.clone(), state, message: message.to_owned(), ..MapStatus::default() }
+}
+
+impl Mapper {
+    fn open(dir: &Path, options: ReconstructOptions, tools: Tools, places: bool) -> Result<Mapper, NodeError> {
+        let work = |e: revisit_pipeline::PipelineError| NodeError::Work(e.to_string());
+        let mut workspace = Workspace::open(dir, options, tools).map_err(work)?;
+        let (journal, lines) = Journal::open(&dir.join("mapper.journal"))?;
+        let mut inputs = Inputs::default();
+        for line in lines {
+            let entry: Entry = serde_json::from_str(&line)
+                .map_err(|e| NodeError::State(format!("{}: {e}", dir.join("mapper.journal").display())))?;
+            inputs.apply(entry);
+        }
+        // The visits stored, in their order, with the keyframes on disk and their calibrations.
+        let sessions = workspace.store().sessions().map_err(|e| work(e.into()))?;
+        for session in sessions {
+            let frames = frames_dir(dir, &session.name);
+            if let Ok(spec) = std::fs::read_to_string(calibration_file(dir, &session.name)) {
+                if let Ok(spec) = spec.trim().parse() {
+                    workspace.calibrate(&session.name, spec);
+                }
+            }
+            let images = list_session(&SessionSpec { name: session.name.clone(), dir: frames }).map_err(work)?;
+            workspace.add_session(images).map_err(work)?;
+        }
+        let queued = Vec::new();
+        Ok(Mapper { workspace, journal, inputs, waiting: BTreeMap::new(), queued, places, summary: Summary::default() })
+    }
+
+    /// Journals an input, then takes it in.
+    fn record(&mut self, entry: Entry) -> Result<(), NodeError> {
+        let line = serde_json::to_string(&entry).map_err(|e| NodeError::State(e.to_string()))?;
+        self.journal.append(&line)?;
+        self.inputs.apply(entry);
+        Ok(())
+    }
+
+    /// Keeps a keyframe: its image as a file of the visit's folder (the camera's calibration beside
+    /// it), the visit and image in the store, then any features that came first.
+    fn keyframe(&mut self, keyframe: &Keyframe) -> Result<(), NodeError> {
+        let dir = self.workspace.dir().to_path_buf();
+        let name = full(&keyframe.session, &keyframe.image_name);
+        let bad = |why: String| NodeError::Work(format!("keyframe {name}: {why}"));
+        revisit_core::ImageName::new(&keyframe.session, &keyframe.image_name).map_err(|e| bad(e.to_string()))?;
+        if keyframe.image_name.contains('/') {
+            return Err(bad("image names must not hold '/'".into()));
+        }
+        let frames = frames_dir(&dir, &keyframe.session);
+        let path = frames.join(&keyframe.image_name);
+        if !path.exists() {
+            revisit_pipeline::images::from_compressed(&keyframe.image, Path::new(&name))
+                .map_err(|e| bad(e.to_string()))?;
+            std::fs::create_dir_all(&frames).map_err(|e| bad(e.to_string()))?;
+            write_atomically(&path, &keyframe.image.data).map_err(|e| bad(e.to_string()))?;
+        }
+        let calibration = calibration_file(&dir, &keyframe.session);
+        if let (Some(spec), false) = (messages::camera_spec(&keyframe.camera_info), calibration.exists()) {
+            write_atomically(&calibration, String::from(spec.clone()).as_bytes()).map_err(|e| bad(e.to_string()))?;
+            self.workspace.calibrate(&keyframe.session, spec);
+        }
+        self.summary.keyframes += 1;
+        let known = self.workspace.sessions().iter().any(|s| s.name == keyframe.session);
+        let all_mapped = self.workspace.sessions().iter().all(|s| self.inputs.mapped.contains(&s.name));
+        if !known && !(all_mapped && self.queued.is_empty()) {
+            if !self.queued.contains(&keyframe.session) {
+                self.queued.push(keyframe.session.clone());
+            }
+            return Ok(());
+        }
+        self.admit(&keyframe.session)
+    }
+
+    /// Adds (or updates) a visit from its keyframes on disk, then stores the features that waited.
+    fn admit(&mut self, session: &str) -> Result<(), NodeError> {
+        let frames = frames_dir(self.workspace.dir(), session);
+        let work = |e: revisit_pipeline::PipelineError| NodeError::Work(format!("visit {session}: {e}"));
+        let images = list_session(&SessionSpec { name: session.to_owned(), dir: frames }).map_err(work)?;
+        let names: Vec<String> = images.images().iter().map(|(_, name)| name.to_string()).collect();
+        self.workspace.add_session(images).map_err(work)?;
+        for name in names {
+            for message in self.waiting.remove(&name).unwrap_or_default() {
+                self.features(message)?;
+            }
+        }
+        Ok(())
+    }
+
+    /// Stores a keyframe's features (or keeps them until the keyframe's visit is in the store).
+    fn features(&mut self, message: Features) -> Result<(), NodeError> {
+        let name = full(&message.session, &message.image_name);
+        let record =
+            messages::features_record(&message).map_err(|why| NodeError::Work(format!("features of {name}: {why}")))?;
+        let admitted = self.workspace.sessions().iter().any(|s| s.name == message.session);
+        let stored =
+            admitted && self.workspace.add_features(&name, &record).map_err(|e| NodeError::Work(e.to_string()))?;
+        if !stored {
+            self.waiting.entry(name).or_default().push(message);
+        }
+        Ok(())
+    }
+
+    /// The visit last admitted, if it ended, is not mapped, and has everything it needs.
+    fn ready(&self) -> Result<Option<String>, revisit_pipeline::PipelineError> {
+        let store = self.workspace.store();
+        let options = self.workspace.options();
+        let with_sift = store.images_with_features()?;
+        let method = options.learned.name();
+        let learned = match options.cross.learned() {
+            true => store.learned_feature_keys(method)?,
+            false => BTreeSet::new(),
+        };
+        for session in self.workspace.sessions() {
+            if self.inputs.mapped.contains(&session.name) {
+                continue;
+            }
+            let Some(&keyframes) = self.inputs.ended.get(&session.name) else { return Ok(None) };
+            if session.images.len() < keyframes as usize || !session.images.iter().all(|i| with_sift.contains(&i.id)) {
+                return Ok(None);
+            }
+            if options.cross.learned() {
+                let rolls = match session.visit {
+                    0 => revisit_matching::RollSearch::Off.rolls(),
+                    _ => options.learned_matching.roll_search.rolls(),
+                };
+                let all = session.images.iter().all(|i| rolls.iter().all(|r| learned.contains(&(i.id, r.degrees()))));
+                if !all {
+                    return Ok(None);
+                }
+            }
+            if self.places && session.visit > 0 {
+                for image in &session.images {
+                    let name = image.name.to_string();
+                    let Some(candidates) = self.inputs.candidates.get(&name) else { return Ok(None) };
+                    if !candidates.iter().all(|c| self.inputs.found.contains_key(&(c.clone(), name.clone()))) {
+                        return Ok(None);
+                    }
+                }
+            }
+            return Ok(Some(session.name.clone()));
+        }
+        Ok(None)
+    }
+
+    /// Stores the matchers' answers for the visit's pairs, then runs the reconstruction.
+    fn map(&mut self, session: &str, cancel: &Cancel) -> Result<Report, revisit_pipeline::PipelineError> {
+        let ids = self.workspace.store().image_ids()?;
+        let mut found = Vec::new();
+        for ((image1, image2), message) in &self.inputs.found {
+            let (Some(&id1), Some(&id2)) = (ids.get(image1), ids.get(image2)) else { continue };
+            if message.method != self.workspace.options().learned.name() {
+                continue;
+            }
+            let answer = messages::cross_match(message)
+                .map_err(|why| revisit_pipeline::PipelineError::Name(format!("matches {image1} - {image2}: {why}")))?;
+            found.push((LearnedPair { image_id1: id1, image_id2: id2, kind: PairKind::Cross }, answer));
+        }
+        if !found.is_empty() {
+            self.workspace.add_cross_matches(found)?;
+        }
+        let report = self.workspace.run(&Silent, cancel)?;
+        let entry = Entry::Mapped { session: session.to_owned() };
+        self.record(entry).map_err(|e| revisit_pipeline::PipelineError::Name(e.to_string()))?;
+        self.summary.mapped.push(session.to_owned());
+        if !self.queued.is_empty() {
+            let next = self.queued.remove(0);
+            self.admit(&next).map_err(|e| revisit_pipeline::PipelineError::Name(e.to_string()))?;
+        }
+        Ok(report)
+    }
+}
+
+/// The work folder's map (its `report.json` and chosen model) as messages; `None`: COLMAP
+/// registered no model.
+fn map_outputs(workspace: &Workspace, node: &Node, out: &Outputs) -> Result<Option<MapMessages>, NodeError> {
+    let header = Header { stamp: node.header("").stamp, frame_id: out.header.frame_id.clone() };
+    let work = |e: String| NodeError::Work(e);
+    let report = Report::read(&workspace.dir().join("report.json")).map_err(|e| work(e.to_string()))?;
+    let Some(model_dir) = &report.chosen_model else { return Ok(None) };
+    let model = revisit_colmap::read_model(model_dir).map_err(|e| work(e.to_string()))?;
+    let visits: Vec<String> = workspace.sessions().iter().map(|s| s.name.clone()).collect();
+    Ok(Some(messages::map_messages(&header, &model, &report, &visits)))
+}
+
+/// Publishes the map on the map topics.
+async fn publish_map(node: &mut Node, out: &mut Outputs, outputs: Option<MapMessages>) -> Result<(), NodeError> {
+    let Some(MapMessages { cloud, paths, cameras, status: map_status }) = outputs else {
+        let message = status(&out.header, MapStatus::FAILED, "COLMAP registered no model");
+        return out.status.async_publish(message).await.map_err(dds);
+    };
+    out.cloud.async_publish(cloud).await.map_err(dds)?;
+    out.cameras.async_publish(cameras).await.map_err(dds)?;
+    for (session, path) in paths {
+        if !out.paths.contains_key(&session) {
+            let topic = format!("map/path/{}", topic_safe(&session));
+            out.paths.insert(session.clone(), node.publisher(&topic, LATCHED)?);
+        }
+        if let Some(publisher) = out.paths.get(&session) {
+            publisher.async_publish(path).await.map_err(dds)?;
+        }
+    }
+    out.status.async_publish(map_status).await.map_err(dds)
+}
+
+/// A visit's name as a ROS topic name token: letters, digits and `_` (others become `_`).
+pub fn topic_safe(session: &str) -> String {
+    let name: String = session.chars().map(|c| if c.is_ascii_alphanumeric() { c } else { '_' }).collect();
+    match name.starts_with(|c: char| c.is_ascii_digit()) {
+        true => format!("v{name}"),
+        false => name,
+    }
+}
+
+fn dds(error: impl std::fmt::Debug) -> NodeError {
+    NodeError::Dds(format!("{error:?}"))
+}
+
+fn frames_dir(work: &Path, session: &str) -> PathBuf {
+    work.join("frames").join(session)
+}
+
+fn calibration_file(work: &Path, session: &str) -> PathBuf {
+    work.join("frames").join(format!("{session}.camera"))
+}
+
+fn write_atomically(path: &Path, bytes: &[u8]) -> std::io::Result<()> {
+    let partial = path.with_extension("partial");
+    std::fs::write(&partial, bytes)?;
+    std::fs::rename(&partial, path)
+}
