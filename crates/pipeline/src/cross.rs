@@ -11,7 +11,7 @@ use std::path::Path;
 
 use revisit_core::{pair_id, ImageId, LearnedFeatures, PairKind, Roll};
 use revisit_matching::{match_learned_pair, CrossOptions, LearnedPairMatch, RollSearch};
-use revisit_places::{nearest, CandidateOptions, GlobalDescriptor, OnnxPlaces, Vlad, Vocabulary};
+use revisit_places::{nearest, Candidate, CandidateOptions, GlobalDescriptor, OnnxPlaces, Vlad, Vocabulary};
 use revisit_store::{CrossSide, PairRecord, Store};
 
 use crate::learned::Learned;
@@ -250,26 +250,47 @@ pub fn plan_learned_pairs(
             }
             CrossStrategy::Vpr => {
                 let Some(places) = places else { continue };
-                let database: Vec<&[f32]> =
-                    earlier.iter().filter_map(|a| places.descriptors.get(&(*a, 0)).map(Vec::as_slice)).collect();
-                if database.len() != earlier.len() {
-                    continue;
-                }
-                for &b in later {
-                    let query: Vec<(Roll, &[f32])> = Roll::ALL
-                        .iter()
-                        .filter_map(|r| places.descriptors.get(&(b, r.degrees())).map(|d| (*r, d.as_slice())))
-                        .collect();
-                    for candidate in nearest(&query, &database, candidates) {
-                        if let Some(&a) = earlier.get(candidate.index) {
-                            pairs.insert(pair(a, b, PairKind::Cross));
-                        }
-                    }
+                for (b, found) in place_candidates(sessions, places, candidates, v) {
+                    pairs.extend(found.into_iter().map(|(a, _)| pair(a, b, PairKind::Cross)));
                 }
             }
         }
     }
     pairs.into_iter().collect()
+}
+
+/// Place recognition's answer for each image of `sessions[visit]`: its nearest images among all
+/// earlier visits' (at roll 0), each with its distance and the query's best roll. Empty if some
+/// earlier image has no descriptor.
+pub fn place_candidates(
+    sessions: &[Session],
+    places: &Places,
+    options: &CandidateOptions,
+    visit: usize,
+) -> Vec<(ImageId, Vec<(ImageId, Candidate)>)> {
+    let earlier: Vec<ImageId> =
+        sessions[..visit.min(sessions.len())].iter().flat_map(|s| &s.images).map(|i| i.id).collect();
+    let database: Vec<&[f32]> =
+        earlier.iter().filter_map(|a| places.descriptors.get(&(*a, 0)).map(Vec::as_slice)).collect();
+    if database.len() != earlier.len() {
+        return Vec::new();
+    }
+    let Some(session) = sessions.get(visit) else { return Vec::new() };
+    session
+        .images
+        .iter()
+        .map(|image| {
+            let query: Vec<(Roll, &[f32])> = Roll::ALL
+                .iter()
+                .filter_map(|r| places.descriptors.get(&(image.id, r.degrees())).map(|d| (*r, d.as_slice())))
+                .collect();
+            let found = nearest(&query, &database, options)
+                .into_iter()
+                .filter_map(|candidate| Some((*earlier.get(candidate.index)?, candidate)))
+                .collect();
+            (image.id, found)
+        })
+        .collect()
 }
 
 /// Stores one matched learned pair (its record, anchored matches and

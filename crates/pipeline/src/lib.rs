@@ -19,6 +19,7 @@
 //! pure; this crate is where they meet files, the store and COLMAP.
 
 pub mod bags;
+pub mod cache;
 pub mod cross;
 pub mod export;
 pub mod images;

@@ -42,6 +42,23 @@ fn previous(work: &Path) -> Option<MappingOutcome> {
     outcome.models.iter().all(|m| m.path.join("images.bin").is_file()).then_some(outcome)
 }
 
+/// Whether every image of the model at `model` still has the keypoints it was mapped with: a
+/// visit added later registers learned keypoints in the earlier visits' images (their keypoint
+/// lists grow), and COLMAP cannot extend a model whose images changed; it maps afresh then.
+fn keypoints_unchanged(model: &Path, database: &Path) -> bool {
+    let (Ok(model), Ok(store)) = (revisit_colmap::read_model(model), revisit_store::Store::open_read_only(database))
+    else {
+        return false;
+    };
+    let unchanged = model.images.values().all(|image| {
+        store.read_keypoints(image.image_id).is_ok_and(|keypoints| keypoints.len() == image.points2d.len())
+    });
+    if !unchanged {
+        tracing::info!("mapping afresh: keypoints were added to images of the previous model");
+    }
+    unchanged
+}
+
 /// Maps the store at `database` into `work`'s model folder. `inputs` is a
 /// fingerprint of what the store holds: if the last mapping had the same, its
 /// models are kept; if it differs and the engine is incremental, the previous
@@ -70,6 +87,7 @@ pub fn map(
         .as_ref()
         .and_then(|b| b.models.first())
         .filter(|_| options.engine == Engine::Incremental)
+        .filter(|m| keypoints_unchanged(&m.path, database))
         .map(|m| m.path.clone());
     // Extend from a copy: the models in place are replaced only on success.
     let extend_copy = match &extend {

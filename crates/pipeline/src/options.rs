@@ -240,6 +240,27 @@ pub struct OptionsError {
 }
 
 impl ReconstructOptions {
+    /// The options a node runs with, so that every node of a graph agrees with the others and
+    /// with `reconstruct`: `file` (JSON, as `report.json`'s `options` shows them; default the
+    /// defaults), then the strategy named `cross` if given. Checked; the error names the file.
+    pub fn for_node(file: Option<&std::path::Path>, cross: Option<&str>) -> Result<ReconstructOptions, String> {
+        let mut options = match file {
+            Some(path) => {
+                let text = std::fs::read_to_string(path).map_err(|e| format!("{}: {e}", path.display()))?;
+                serde_json::from_str(&text).map_err(|e| format!("{}: {e}", path.display()))?
+            }
+            None => ReconstructOptions::default(),
+        };
+        if let Some(name) = cross {
+            options.cross = CrossStrategy::from_name(name).ok_or_else(|| {
+                let known: Vec<&str> = CrossStrategy::ALL.iter().map(|s| s.name()).collect();
+                format!("cross {name:?} is not one of {known:?}")
+            })?;
+        }
+        options.check().map_err(|e| e.to_string())?;
+        Ok(options)
+    }
+
     /// Every random choice (RANSAC within and across visits, COLMAP) from one seed.
     pub fn with_seed(mut self, seed: u64) -> Self {
         self.verify.seed = seed;

@@ -5,9 +5,9 @@
 //! `stages::sift_features` and `Learned::extract`, the functions `revisit reconstruct` runs, so a
 //! keyframe's features are the same bytes either way.
 //!
-//! Parameters: `learned` (`aliked-lightglue`, `xfeat-lighterglue` or `none`; default the
-//! reconstruction's), `roll_search` (`probe`, `full` or `off`: `off` describes later visits at roll 0
-//! only), `state_dir` (the node's memory: the order of visits and the keyframes done; default
+//! Parameters: `options_file` and `cross` (the reconstruction's options, as the mapper's: they
+//! choose the learned method, none unless visits are linked by a learned strategy, and the rolls
+//! the search needs), `state_dir` (the node's memory: the order of visits and the keyframes done; default
 //! `revisit-state/features`), `models` (the ONNX models' folder; default as `revisit` finds it),
 //! `onnx_threads` (0: ONNX Runtime's choice).
 //!
@@ -21,10 +21,9 @@ use std::time::Instant;
 
 use futures::StreamExt;
 use revisit_core::Roll;
-use revisit_matching::RollSearch;
 use revisit_msgs::revisit_msgs::{Features, Keyframe};
 use revisit_node::{Journal, LogLevel, Node, NodeError, Publisher, WORK_QUEUE};
-use revisit_pipeline::learned::{Learned, LearnedMethod};
+use revisit_pipeline::learned::Learned;
 use revisit_pipeline::locate::Tools;
 use revisit_pipeline::messages;
 use revisit_pipeline::options::FeatureOptions;
@@ -81,7 +80,15 @@ impl State {
     }
 }
 
-/// The method, the rolls later visits need, and the opened models (`None`: SIFT only).
+/// The reconstruction's options from the `options_file` and `cross` parameters.
+pub fn node_options(node: &Node) -> Result<ReconstructOptions, NodeError> {
+    let file: Option<PathBuf> = node.param("options_file", None)?;
+    let cross: Option<String> = node.param("cross", None)?;
+    ReconstructOptions::for_node(file.as_deref(), cross.as_deref())
+        .map_err(|reason| NodeError::Parameter { name: "options_file".into(), reason })
+}
+
+/// The learned method's models and the rolls later visits need.
 struct LearnedSide {
     learned: Learned,
     later_rolls: &'static [Roll],
@@ -89,33 +96,23 @@ struct LearnedSide {
 
 /// Runs the features node until SIGINT or SIGTERM (the keyframe in flight is finished).
 pub async fn run(node: &mut Node) -> Result<Summary, NodeError> {
-    let defaults = ReconstructOptions::default();
-    let parameter = |name: &str, reason: String| NodeError::Parameter { name: name.into(), reason };
-    let method: String = node.param("learned", defaults.learned.name().to_owned())?;
-    let search = match node.param("roll_search", "probe".to_owned())?.as_str() {
-        "probe" => RollSearch::DEFAULT,
-        "full" => RollSearch::Full,
-        "off" => RollSearch::Off,
-        other => return Err(parameter("roll_search", format!("{other:?} is not probe, full or off"))),
-    };
+    let options = node_options(node)?;
+    let search = options.learned_matching.roll_search;
     let state_dir: PathBuf = node.param("state_dir", PathBuf::from("revisit-state/features"))?;
     let mut state = State::open(&state_dir)?;
-    let mut learned = match method.as_str() {
-        "none" => None,
-        name => {
-            let method = LearnedMethod::from_name(name).ok_or_else(|| {
-                let known: Vec<&str> = LearnedMethod::ALL.iter().map(|m| m.name()).collect();
-                parameter("learned", format!("{name:?} is not none or one of {known:?}"))
-            })?;
+    let method = options.learned.name();
+    let mut learned = match options.cross.learned() {
+        false => None,
+        true => {
             let tools = Tools { models: node.param("models", None)?, ..Tools::default() };
             let threads: usize = node.param("onnx_threads", 0)?;
-            let runtime = tools.onnxruntime(threads).map_err(|e| NodeError::Work(e.to_string()))?;
-            let learned =
-                Learned::open(&runtime, &tools.models(), method).map_err(|e| NodeError::Work(e.to_string()))?;
+            let work = |e: String| NodeError::Work(e);
+            let runtime = tools.onnxruntime(threads).map_err(|e| work(e.to_string()))?;
+            let learned = Learned::open(&runtime, &tools.models(), options.learned).map_err(|e| work(e.to_string()))?;
             Some(LearnedSide { learned, later_rolls: search.rolls() })
         }
     };
-    let sift = FeatureOptions::default();
+    let sift = options.features.clone();
 
     let keyframes = node.subscription::<Keyframe>("keyframes", WORK_QUEUE)?;
     let features = node.publisher::<Features>("features", WORK_QUEUE)?;
@@ -124,7 +121,11 @@ pub async fn run(node: &mut Node) -> Result<Summary, NodeError> {
     let stopped = node.stopped();
     let mut stopped = std::pin::pin!(stopped);
     let mut keyframes = std::pin::pin!(keyframes.async_stream());
-    node.log(LogLevel::Info, &format!("describing keyframes with SIFT and {method}; state in {}", state_dir.display()));
+    let learned_name = if learned.is_some() { method } else { "no learned method" };
+    node.log(
+        LogLevel::Info,
+        &format!("describing keyframes with SIFT and {learned_name}; state in {}", state_dir.display()),
+    );
     loop {
         let keyframe = tokio::select! {
             () = &mut stopped => break,

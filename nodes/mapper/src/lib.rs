@@ -39,7 +39,7 @@ use revisit_pipeline::cross::LearnedPair;
 use revisit_pipeline::ingest::{list_session, SessionSpec};
 use revisit_pipeline::locate::Tools;
 use revisit_pipeline::messages::{self, MapMessages};
-use revisit_pipeline::{Cancel, CrossStrategy, ReconstructOptions, Report, Silent, Workspace};
+use revisit_pipeline::{Cancel, ReconstructOptions, Report, Silent, Workspace};
 use serde::{Deserialize, Serialize};
 
 /// The node's name unless remapped.
@@ -63,15 +63,29 @@ impl std::fmt::Display for Summary {
 #[derive(Debug, Clone, Serialize, Deserialize)]
 #[serde(tag = "kind", rename_all = "snake_case")]
 enum Entry {
-    End { session: String, keyframes: u32 },
-    Candidates { image: String, candidates: Vec<String> },
+    /// A visit's first keyframe came.
+    Visit {
+        session: String,
+    },
+    End {
+        session: String,
+        keyframes: u32,
+    },
+    Candidates {
+        image: String,
+        candidates: Vec<String>,
+    },
     Found(CrossVisitMatches),
-    Mapped { session: String },
+    Mapped {
+        session: String,
+    },
 }
 
 /// What the journal says.
 #[derive(Default)]
 struct Inputs {
+    /// Visits in the order their first keyframes came.
+    visits: Vec<String>,
     /// Visits ended, with their keyframe counts.
     ended: BTreeMap<String, u32>,
     /// Each query image's candidates (`session/file` names).
@@ -84,6 +98,7 @@ struct Inputs {
 impl Inputs {
     fn apply(&mut self, entry: Entry) {
         match entry {
+            Entry::Visit { session } => self.visits.push(session),
             Entry::End { session, keyframes } => {
                 self.ended.insert(session, keyframes);
             }
@@ -132,23 +147,8 @@ struct Mapper {
 /// Runs the mapper node until SIGINT or SIGTERM (a mapping in progress is stopped; the next start
 /// maps again).
 pub async fn run(node: &mut Node) -> Result<Summary, NodeError> {
-    let parameter = |name: &str, reason: String| NodeError::Parameter { name: name.into(), reason };
     let work_dir: PathBuf = node.param("work_dir", PathBuf::from("revisit-state/mapper"))?;
-    let mut options = match node.param::<Option<PathBuf>>("options_file", None)? {
-        Some(path) => {
-            let text = std::fs::read_to_string(&path)
-                .map_err(|e| parameter("options_file", format!("{}: {e}", path.display())))?;
-            serde_json::from_str::<ReconstructOptions>(&text)
-                .map_err(|e| parameter("options_file", format!("{}: {e}", path.display())))?
-        }
-        None => ReconstructOptions::default(),
-    };
-    if let Some(name) = node.param::<Option<String>>("cross", None)? {
-        options.cross = CrossStrategy::from_name(&name).ok_or_else(|| {
-            let known: Vec<&str> = CrossStrategy::ALL.iter().map(|s| s.name()).collect();
-            parameter("cross", format!("{name:?} is not one of {known:?}"))
-        })?;
-    }
+    let options = node_options(node)?;
     let places = node.param("places", options.cross.places())?;
     let tools = Tools { python: node.param("python", None)?, models: node.param("models", None)?, ..Tools::default() };
     let frame_id: String = node.param("frame_id", "map".to_owned())?;
@@ -255,19 +255,23 @@ impl Mapper {
                 .map_err(|e| NodeError::State(format!("{}: {e}", dir.join("mapper.journal").display())))?;
             inputs.apply(entry);
         }
-        // The visits stored, in their order, with the keyframes on disk and their calibrations.
-        let sessions = workspace.store().sessions().map_err(|e| work(e.into()))?;
-        for session in sessions {
-            let frames = frames_dir(dir, &session.name);
-            if let Ok(spec) = std::fs::read_to_string(calibration_file(dir, &session.name)) {
+        // Every visit's calibration, then the visits stored, in their order, with the keyframes on
+        // disk; the others wait their turn.
+        for session in &inputs.visits {
+            if let Ok(spec) = std::fs::read_to_string(calibration_file(dir, session)) {
                 if let Ok(spec) = spec.trim().parse() {
-                    workspace.calibrate(&session.name, spec);
+                    workspace.calibrate(session, spec);
                 }
             }
-            let images = list_session(&SessionSpec { name: session.name.clone(), dir: frames }).map_err(work)?;
+        }
+        let stored: Vec<String> =
+            workspace.store().sessions().map_err(|e| work(e.into()))?.into_iter().map(|s| s.name).collect();
+        for session in &stored {
+            let images =
+                list_session(&SessionSpec { name: session.clone(), dir: frames_dir(dir, session) }).map_err(work)?;
             workspace.add_session(images).map_err(work)?;
         }
-        let queued = Vec::new();
+        let queued = inputs.visits.iter().filter(|v| !stored.contains(v)).cloned().collect();
         Ok(Mapper { workspace, journal, inputs, waiting: BTreeMap::new(), queued, places, summary: Summary::default() })
     }
 
@@ -297,12 +301,25 @@ impl Mapper {
             std::fs::create_dir_all(&frames).map_err(|e| bad(e.to_string()))?;
             write_atomically(&path, &keyframe.image.data).map_err(|e| bad(e.to_string()))?;
         }
+        // The visit's calibration is its first keyframe's that has one, kept beside its frames.
         let calibration = calibration_file(&dir, &keyframe.session);
-        if let (Some(spec), false) = (messages::camera_spec(&keyframe.camera_info), calibration.exists()) {
-            write_atomically(&calibration, String::from(spec.clone()).as_bytes()).map_err(|e| bad(e.to_string()))?;
+        let kept = std::fs::read_to_string(&calibration).ok().and_then(|text| text.trim().parse().ok());
+        let spec = match (kept, messages::camera_spec(&keyframe.camera_info)) {
+            (Some(kept), _) => Some(kept),
+            (None, Some(spec)) => {
+                write_atomically(&calibration, String::from(spec.clone()).as_bytes())
+                    .map_err(|e| bad(e.to_string()))?;
+                Some(spec)
+            }
+            (None, None) => None,
+        };
+        if let Some(spec) = spec {
             self.workspace.calibrate(&keyframe.session, spec);
         }
         self.summary.keyframes += 1;
+        if !self.inputs.visits.contains(&keyframe.session) {
+            self.record(Entry::Visit { session: keyframe.session.clone() })?;
+        }
         let known = self.workspace.sessions().iter().any(|s| s.name == keyframe.session);
         let all_mapped = self.workspace.sessions().iter().all(|s| self.inputs.mapped.contains(&s.name));
         if !known && !(all_mapped && self.queued.is_empty()) {
@@ -443,6 +460,14 @@ async fn publish_map(node: &mut Node, out: &mut Outputs, outputs: Option<MapMess
         }
     }
     out.status.async_publish(map_status).await.map_err(dds)
+}
+
+/// The reconstruction's options from the `options_file` and `cross` parameters.
+pub fn node_options(node: &Node) -> Result<ReconstructOptions, NodeError> {
+    let file: Option<PathBuf> = node.param("options_file", None)?;
+    let cross: Option<String> = node.param("cross", None)?;
+    ReconstructOptions::for_node(file.as_deref(), cross.as_deref())
+        .map_err(|reason| NodeError::Parameter { name: "options_file".into(), reason })
 }
 
 /// A visit's name as a ROS topic name token: letters, digits and `_` (others become `_`).

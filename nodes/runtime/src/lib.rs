@@ -26,6 +26,7 @@ pub use node::{
 pub use params::{Endpoint, Parameters};
 pub use raw::{RawAdapter, RawCdr};
 pub use replay::{play, record, PlayOptions, Played, RecordOptions, ReplayError};
+pub use ros2_client::dds::rustdds::GUID as Guid;
 pub use ros2_client::log::LogLevel;
 pub use ros2_client::qos::{Durability, History, Reliability};
 pub use ros2_client::{Publisher, QosProfile, Subscription};

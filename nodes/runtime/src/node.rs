@@ -270,6 +270,18 @@ impl Node {
         readers.iter().filter(|r| r.subscription_topic_data.topic_name == dds_name).count()
     }
 
+    /// The DDS identities of the other readers of `topic` (absolute) in the domain; with a
+    /// subscription's own `guid()`, the members of a group of nodes sharing work.
+    pub fn other_readers(&self, topic: &str) -> Vec<rustdds::GUID> {
+        let dds_name = format!("rt{topic}");
+        let readers = self.context.domain_participant().discovered_readers();
+        readers
+            .iter()
+            .filter(|r| r.subscription_topic_data.topic_name == dds_name)
+            .map(|r| r.reader_proxy.remote_reader_guid)
+            .collect()
+    }
+
     /// The node's time: the latest `/clock` with `use_sim_time` (zero until one arrives), else
     /// the system clock.
     pub fn now(&self) -> Time {

@@ -7,7 +7,7 @@
 //! namespace: /revisit              # optional, every node's namespace
 //! parameters: {use_sim_time: true} # optional, given to every node
 //! nodes:
-//!   - node: ingest                 # which node (Revisit has: ingest, features, mapper)
+//!   - node: ingest                 # which node (Revisit has: ingest, features, places, matcher, mapper)
 //!     name: ingest                 # optional, the node's name
 //!     parameters: {keyframe.min_overlap: 0.7}
 //!     remappings: {image/compressed: /camera/image_raw/compressed}
@@ -65,11 +65,11 @@ fn one_second() -> f64 {
 }
 
 /// The nodes Revisit has (each also an executable `revisit-KIND`, and `revisit node KIND`).
-const NODES: [&str; 3] = ["ingest", "features", "mapper"];
+const NODES: [&str; 5] = ["ingest", "features", "places", "matcher", "mapper"];
 
 #[derive(clap::Args)]
 pub struct NodeArgs {
-    /// Which node: ingest, features or mapper.
+    /// Which node: ingest, features, places, matcher or mapper.
     kind: String,
     /// ROS arguments: --ros-args -p NAME:=VALUE -r FROM:=TO -r __ns:=/NS ...
     #[arg(long = "ros-args", num_args = 0.., allow_hyphen_values = true, value_name = "ARG")]
@@ -96,6 +96,8 @@ async fn run_kind(kind: &str, node: &mut Node) -> Result<()> {
     let summary = match kind {
         "ingest" => revisit_ingest_node::run(node).await?.to_string(),
         "features" => revisit_features_node::run(node).await?.to_string(),
+        "places" => revisit_places_node::run(node).await?.to_string(),
+        "matcher" => revisit_matcher_node::run(node).await?.to_string(),
         "mapper" => revisit_mapper_node::run(node).await?.to_string(),
         other => bail!("no node {other:?}"),
     };
