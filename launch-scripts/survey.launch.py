@@ -4,8 +4,7 @@
 
 It starts the same nodes, with the same parameters and remappings, as
 `revisit launch launch-scripts/survey.yaml` (the executables `revisit-NODE` on PATH, e.g. from
-`cargo install --path nodes/ingest`). The features, places, matcher and mapper nodes are not
-built yet.
+`cargo install --path nodes/ingest`, and likewise features, places, matcher and mapper).
 """
 from launch import LaunchDescription
 from launch.actions import DeclareLaunchArgument
@@ -29,6 +28,34 @@ def generate_launch_description():
             ],
             respawn=True,
             respawn_delay=1.0,
+            output="screen",
+        ),
+        Node(
+            executable="revisit-features",
+            name="features",
+            parameters=[{"use_sim_time": use_sim_time, "state_dir": "revisit-state/features"}],
+            respawn=True,
+            output="screen",
+        ),
+        Node(
+            executable="revisit-places",
+            name="places",
+            parameters=[{"use_sim_time": use_sim_time, "state_dir": "revisit-state/places"}],
+            respawn=True,
+            output="screen",
+        ),
+        Node(
+            executable="revisit-matcher",
+            name="matcher",
+            parameters=[{"use_sim_time": use_sim_time, "state_dir": "revisit-state/matcher"}],
+            respawn=True,
+            output="screen",
+        ),
+        Node(
+            executable="revisit-mapper",
+            name="mapper",
+            parameters=[{"use_sim_time": use_sim_time, "work_dir": "revisit-state/mapper", "frame_id": "map"}],
+            respawn=True,
             output="screen",
         ),
     ])

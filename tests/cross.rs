@@ -8,67 +8,10 @@
 
 mod common;
 
-use std::path::Path;
-
-use common::{read_json, run_err, run_ok};
+use common::{cross_error_px, fully_registered, read_json, reconstruct, reconstruct_uncalibrated, run_err, run_ok};
 
 /// Images per visit of the strong-change reef (3 visits, then a 4th).
 const IMAGES: u64 = 12;
-
-/// The survey's calibrated camera as `--camera` takes it (every session of
-/// the synthetic reef has the same one).
-fn camera(reef: &Path) -> String {
-    let intrinsics = read_json(&reef.join("truth/intrinsics.json"));
-    let first = &intrinsics[0];
-    let params: Vec<String> = first["params"].as_array().unwrap().iter().map(|p| p.to_string()).collect();
-    format!("{}:{}", first["model"].as_str().unwrap(), params.join(","))
-}
-
-/// `revisit reconstruct` over `sessions` of the reef into `work`, with the
-/// calibrated camera and `extra` options.
-fn reconstruct(reef: &Path, sessions: &[&str], work: &Path, extra: &[&str]) -> serde_json::Value {
-    let camera = ["--camera".to_owned(), camera(reef)];
-    reconstruct_uncalibrated(reef, sessions, work, &[&camera.each_ref().map(String::as_str)[..], extra].concat())
-}
-
-/// `revisit reconstruct` over `sessions` of the reef into `work` with `extra` options only.
-fn reconstruct_uncalibrated(reef: &Path, sessions: &[&str], work: &Path, extra: &[&str]) -> serde_json::Value {
-    let mut args: Vec<String> = vec!["reconstruct".into(), "--out".into(), work.display().to_string()];
-    for name in sessions {
-        args.push("--session".into());
-        args.push(format!("{name}={}", reef.join("sessions").join(name).display()));
-    }
-    args.extend(["--max-features", "1024"].map(String::from));
-    args.extend(extra.iter().map(|s| s.to_string()));
-    run_ok(&args.iter().map(String::as_str).collect::<Vec<_>>());
-    read_json(&work.join("report.json"))
-}
-
-/// Median cross-session reprojection error (px) of `work`'s chosen model
-/// over the truth's clicks between `sessions`, or None if nothing scored.
-fn cross_error_px(reef: &Path, sessions: &[&str], work: &Path) -> Option<f64> {
-    let report = read_json(&work.join("report.json"));
-    let model = report["chosen_model"].as_str()?.to_owned();
-    let mut args = vec!["eval".to_owned(), "--model".to_owned(), model, "--points".to_owned()];
-    for (i, a) in sessions.iter().enumerate() {
-        for b in &sessions[i + 1..] {
-            args.push(reef.join("truth").join(format!("evaluation_points_{a}-{b}.csv")).display().to_string());
-        }
-    }
-    let json = work.join("eval.json");
-    args.extend(["--radius-px", "8", "--at-click-depth", "--json"].map(String::from));
-    args.push(json.display().to_string());
-    run_ok(&args.iter().map(String::as_str).collect::<Vec<_>>());
-    let scores = read_json(&json);
-    println!("{}: {} clicks scored, median {} px", work.display(), scores["scored"], scores["median_px"]);
-    scores["median_px"].as_f64()
-}
-
-/// Sessions with every image registered in the chosen model.
-fn fully_registered(report: &serde_json::Value) -> Vec<String> {
-    let sessions = report["sessions"].as_object().unwrap();
-    sessions.iter().filter(|(_, s)| s["registered"] == s["images"]).map(|(name, _)| name.clone()).collect()
-}
 
 #[test]
 fn strong_change_links_with_place_recognition_and_roll_search_not_with_sift() {

@@ -59,9 +59,11 @@ fn the_launched_graph_ingests_a_played_bag_respawns_and_stops_on_ctrl_c() {
         "5",
     ]);
 
+    // The whole graph of the shipped launch file, its nodes' state in the test's folder.
     let mut launch = revisit_in_domain()
         .args(["launch"])
         .arg(revisit_testkit::repo().join("launch-scripts/survey.yaml"))
+        .current_dir(dir.path())
         .stderr(Stdio::piped())
         .spawn()
         .unwrap();
@@ -149,7 +151,7 @@ fn the_ros_launch_file_parses_and_matches_the_yaml() {
     for node in yaml["nodes"].as_array().unwrap() {
         let kind = node["node"].as_str().unwrap();
         assert!(python.contains(&format!("executable=\"revisit-{kind}\"")), "{kind} missing from the .py");
-        for (from, to) in node["remappings"].as_object().unwrap() {
+        for (from, to) in node["remappings"].as_object().into_iter().flatten() {
             let pair = format!("(\"{from}\", \"{}\")", to.as_str().unwrap());
             assert!(python.contains(&pair), "remapping {pair} missing from the .py");
         }

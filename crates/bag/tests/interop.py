@@ -11,10 +11,12 @@ write DIR EXPECTED.json   write EXPECTED's messages with independent encoders: D
                           and DIR/rosbags_mcap (rosbags, with its own definitions of ROS's types), and
                           DIR/mcap_ros2.mcap (mcap-ros2-support).
 listen OUT.json SPEC.json a Cyclone DDS peer on loopback in SPEC's domain: subscribe SPEC's topics
-                          (topic -> {type, count}), print "ready", and write what arrives as OUT.json
+                          (topic -> {type, count, transient_local}), print "ready", and write what
+                          arrives (until every count is reached, then SPEC's settle seconds) as OUT.json
                           (topic -> values) once every count is reached or SPEC's timeout passes.
 talk - SPEC.json          a Cyclone DDS peer on loopback: wait for a subscriber of each of SPEC's topics
-                          (topic -> {type, values}), publish the values at SPEC's rate_hz, wait for acks.
+                          (topic -> {type, values}), publish the values at SPEC's rate_hz (a null value
+                          skips a topic's turn), wait for acks.
 """
 import dataclasses
 import json
@@ -256,9 +258,64 @@ def idl_types():
         pose: PoseWithCovariance
         twist: TwistWithCovariance
 
+    @dataclass
+    class PoseStamped(IdlStruct, typename="geometry_msgs::msg::dds_::PoseStamped_"):
+        header: Header
+        pose: Pose
+
+    @dataclass
+    class Path(IdlStruct, typename="nav_msgs::msg::dds_::Path_"):
+        header: Header
+        poses: sequence[PoseStamped]
+
+    @dataclass
+    class PointField(IdlStruct, typename="sensor_msgs::msg::dds_::PointField_"):
+        name: str
+        offset: uint32
+        datatype: uint8
+        count: uint32
+
+    @dataclass
+    class PointCloud2(IdlStruct, typename="sensor_msgs::msg::dds_::PointCloud2_"):
+        header: Header
+        height: uint32
+        width: uint32
+        fields: sequence[PointField]
+        is_bigendian: bool
+        point_step: uint32
+        row_step: uint32
+        data: sequence[uint8]
+        is_dense: bool
+
+    @dataclass
+    class SessionStatus(IdlStruct, typename="revisit_msgs::msg::dds_::SessionStatus_"):
+        session: str
+        visit: uint32
+        images: uint32
+        registered: uint32
+
+    @dataclass
+    class MapStatus(IdlStruct, typename="revisit_msgs::msg::dds_::MapStatus_"):
+        header: Header
+        state: uint8
+        message: str
+        sessions: sequence[SessionStatus]
+        points: uint32
+        mean_reprojection_error_px: float64
+
+    @dataclass
+    class SessionControl(IdlStruct, typename="revisit_msgs::msg::dds_::SessionControl_"):
+        header: Header
+        command: uint8
+        session: str
+        source: str
+        keyframes: uint32
+
     return {"builtin_interfaces/msg/Time": Time, "std_msgs/msg/Header": Header, "sensor_msgs/msg/Image": Image,
             "sensor_msgs/msg/CameraInfo": CameraInfo, "sensor_msgs/msg/NavSatFix": NavSatFix,
-            "nav_msgs/msg/Odometry": Odometry}
+            "nav_msgs/msg/Odometry": Odometry, "nav_msgs/msg/Path": Path,
+            "sensor_msgs/msg/PointCloud2": PointCloud2, "revisit_msgs/msg/MapStatus": MapStatus,
+            "revisit_msgs/msg/SessionControl": SessionControl}
 
 
 def idl_value(cls, value):
@@ -301,17 +358,20 @@ def dds_participant(spec):
     return DomainParticipant(spec["domain"])
 
 
-def reliable_qos(depth=1000):
+def reliable_qos(depth=1000, transient_local=False):
     from cyclonedds.qos import Policy, Qos
     from cyclonedds.util import duration
-    return Qos(Policy.Reliability.Reliable(duration(seconds=1)), Policy.History.KeepLast(depth))
+    durability = Policy.Durability.TransientLocal if transient_local else Policy.Durability.Volatile
+    return Qos(Policy.Reliability.Reliable(duration(seconds=1)), Policy.History.KeepLast(depth), durability)
 
 
 def endpoints(spec, kind, types):
-    """A reliable DataReader or DataWriter (`kind`) per topic of SPEC, in SPEC's domain."""
+    """A reliable DataReader or DataWriter (`kind`) per topic of SPEC, in SPEC's domain; transient
+    local where the topic's entry says `"transient_local": true` (a late reader of latched topics)."""
     from cyclonedds.topic import Topic
     participant = dds_participant(spec)
-    return {name: kind(participant, Topic(participant, "rt" + name, types[entry["type"]]), qos=reliable_qos())
+    return {name: kind(participant, Topic(participant, "rt" + name, types[entry["type"]]),
+                       qos=reliable_qos(transient_local=entry.get("transient_local", False)))
             for name, entry in spec["topics"].items()}
 
 
@@ -324,6 +384,11 @@ def listen(out, spec):
     got = {name: [] for name in readers}
     deadline = time.monotonic() + spec.get("timeout", 60)
     while time.monotonic() < deadline and any(len(got[n]) < e["count"] for n, e in spec["topics"].items()):
+        for name, reader in readers.items():
+            got[name].extend(plain(sample) for sample in reader.take(N=100))
+        time.sleep(0.005)
+    settle = time.monotonic() + spec.get("settle", 0)  # whatever else is on its way
+    while time.monotonic() < settle:
         for name, reader in readers.items():
             got[name].extend(plain(sample) for sample in reader.take(N=100))
         time.sleep(0.005)
@@ -346,7 +411,7 @@ def talk(_, spec):
     count = max(len(e["values"]) for e in spec["topics"].values())
     for i in range(count):
         for name, entry in spec["topics"].items():
-            if i < len(entry["values"]):
+            if i < len(entry["values"]) and entry["values"][i] is not None:
                 writers[name].write(idl_value(types[entry["type"]], entry["values"][i]))
         time.sleep(1.0 / spec.get("rate_hz", 10))
     time.sleep(2.0)  # reliable repairs (cyclonedds's wait_for_acks fails on its timeout path)

@@ -158,7 +158,7 @@ pub fn cross_match(message: &CrossVisitMatches) -> Result<CrossMatch, String> {
             .and_then(Roll::from_degrees)
             .ok_or_else(|| format!("roll {degrees} is not 0, 90, 180 or 270"))
     };
-    if message.matches.len() % 2 != 0 || message.rolls_tried.len() != message.inliers_by_roll.len() {
+    if !message.matches.len().is_multiple_of(2) || message.rolls_tried.len() != message.inliers_by_roll.len() {
         return Err("matches must come in pairs and each roll tried must have its inlier count".into());
     }
     let inliers_by_roll = message

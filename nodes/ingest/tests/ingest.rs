@@ -12,7 +12,7 @@ use revisit_msgs::builtin_interfaces::Time;
 use revisit_msgs::revisit_msgs::{Keyframe, SessionControl};
 use revisit_msgs::sensor_msgs::CompressedImage;
 use revisit_msgs::std_msgs::Header;
-use revisit_node::{play, Domain, Node, PlayOptions, RosArgs, LATCHED, RELIABLE};
+use revisit_node::{play, Domain, Node, PlayOptions, RosArgs, WORK_QUEUE};
 use revisit_pipeline::bags::{ingest, IngestOptions};
 use revisit_pipeline::ingest::SessionSpec;
 use revisit_pipeline::{Cancel, Silent};
@@ -73,8 +73,8 @@ async fn played_bag_gives_the_offline_keyframes() {
     let words = ["-r", "image/compressed:=/camera/image_raw/compressed"].map(String::from);
     let mut ingest_node = Node::start_in(domain, revisit_ingest_node::NAME, &RosArgs::parse(&words).unwrap()).unwrap();
     let mut listener = Node::start_in(domain, "listener", &RosArgs::default()).unwrap();
-    let keyframes = listener.subscription::<Keyframe>("/keyframes", RELIABLE).unwrap();
-    let visits = listener.subscription::<SessionControl>("/visits", LATCHED).unwrap();
+    let keyframes = listener.subscription::<Keyframe>("/keyframes", WORK_QUEUE).unwrap();
+    let visits = listener.subscription::<SessionControl>("/visits", WORK_QUEUE).unwrap();
     let running = tokio::spawn(async move {
         let summary = revisit_ingest_node::run(&mut ingest_node).await;
         (ingest_node, summary)

@@ -218,15 +218,12 @@ pub async fn run(node: &mut Node) -> Result<Summary, NodeError> {
                 out.status.async_publish(status(&out.header, MapStatus::MAPPING, &format!("mapping {session}"))).await;
             match tokio::task::block_in_place(|| mapper.map(&session, &cancel)) {
                 Ok(report) => {
-                    node.log(
-                        LogLevel::Info,
-                        &format!(
-                            "visit {session} mapped: {} model(s), unlinked {:?}",
-                            report.models, report.unlinked_sessions
-                        ),
-                    );
                     let outputs = tokio::task::block_in_place(|| map_outputs(&mapper.workspace, node, &out))?;
                     publish_map(node, &mut out, outputs).await?;
+                    let (models, unlinked) = (report.models, report.unlinked_sessions);
+                    let said =
+                        format!("visit {session} mapped and published: {models} model(s), unlinked {unlinked:?}");
+                    node.log(LogLevel::Info, &said);
                 }
                 Err(revisit_pipeline::PipelineError::Cancelled) => break,
                 Err(error) => {
@@ -322,7 +319,9 @@ impl Mapper {
         }
         let known = self.workspace.sessions().iter().any(|s| s.name == keyframe.session);
         let all_mapped = self.workspace.sessions().iter().all(|s| self.inputs.mapped.contains(&s.name));
-        if !known && !(all_mapped && self.queued.is_empty()) {
+        // A new visit enters the store once every visit in it is mapped and none waits before it.
+        let may_enter = known || (all_mapped && self.queued.is_empty());
+        if !may_enter {
             if !self.queued.contains(&keyframe.session) {
                 self.queued.push(keyframe.session.clone());
             }

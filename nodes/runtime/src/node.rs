@@ -33,7 +33,8 @@ pub const SENSOR_DATA: QosProfile = QosProfile::subscription_default().history(H
 /// latest value.
 pub const LATCHED: QosProfile = QosProfile::publisher_default()
     .durability(Durability::TransientLocal)
-    .reliability(Reliability::Reliable { when_full: WhenFull::DEFAULT });
+    .reliability(Reliability::Reliable { when_full: WhenFull::DEFAULT })
+    .history(History::KeepLast { depth: 1 });
 
 /// Reliable and transient-local, keep the last 256: a work queue between nodes. A subscriber that
 /// starts late or restarts receives the backlog the publisher still holds, and skips what its own

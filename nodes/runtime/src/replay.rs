@@ -17,6 +17,8 @@ use crate::NodeError;
 
 /// How long discovery takes to finish both ways on one machine, with room to spare.
 const MATCH_GRACE: Duration = Duration::from_millis(1000);
+/// How long `play` waits for subscribers to acknowledge the last messages.
+const ACK_WAIT: Duration = Duration::from_secs(30);
 
 /// How a bag is played.
 #[derive(Clone, Debug)]
@@ -154,8 +156,12 @@ pub async fn play(
         played.published += 1;
         progress(played.published, total);
     }
-    for (_, writer) in writers.values() {
-        let _ = tokio::time::timeout(Duration::from_secs(5), writer.async_wait_for_acknowledgments()).await;
+    // Every reliable reader has the last messages before the writers go (a busy graph can take a
+    // while to acknowledge).
+    for (topic, (_, writer)) in &writers {
+        if tokio::time::timeout(ACK_WAIT, writer.async_wait_for_acknowledgments()).await.is_err() {
+            tracing::warn!("{topic}: not every subscriber acknowledged the last messages within {ACK_WAIT:?}");
+        }
     }
     played.seconds = started.elapsed().as_secs_f64();
     Ok(played)
