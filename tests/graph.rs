@@ -55,7 +55,9 @@ fn launch_file(state: &Path, options: &Path) -> String {
         "nodes:\n".to_owned(),
         node(
             "ingest",
-            "      keyframe.min_overlap: 0.0\n    remappings:\n      image/compressed: /camera/image_raw/compressed\n      camera_info: /camera/camera_info\n",
+            // A replay must not drop frames: the camera topics are read reliably (`bag play`
+            // publishes reliably; a camera driver's best-effort topics would not match this).
+            "      keyframe.min_overlap: 0.0\n      qos_overrides./camera/image_raw/compressed.subscription.reliability: reliable\n      qos_overrides./camera/image_raw/compressed.subscription.depth: 100\n      qos_overrides./camera/camera_info.subscription.reliability: reliable\n      qos_overrides./camera/camera_info.subscription.depth: 100\n    remappings:\n      image/compressed: /camera/image_raw/compressed\n      camera_info: /camera/camera_info\n",
         ),
         node("features", ""),
         node("places", ""),
