@@ -81,6 +81,12 @@ struct Matcher {
 /// Runs the matcher node until SIGINT or SIGTERM (the pair in flight is finished).
 pub async fn run(node: &mut Node) -> Result<Summary, NodeError> {
     let options = node_options(node)?;
+    if !options.cross.places() {
+        // A graph launched whole with another strategy: no candidates will come.
+        node.log(LogLevel::Info, &format!("cross {} does not use place recognition: idle", options.cross.name()));
+        node.stopped().await;
+        return Ok(Summary::default());
+    }
     let state_dir: PathBuf = node.param("state_dir", PathBuf::from("revisit-state/matcher"))?;
     let tools = Tools { models: node.param("models", None)?, ..Tools::default() };
     let threads: usize = node.param("onnx_threads", 0)?;

@@ -64,10 +64,11 @@ struct Places {
 pub async fn run(node: &mut Node) -> Result<Summary, NodeError> {
     let options = node_options(node)?;
     if !options.cross.places() {
-        return Err(NodeError::Parameter {
-            name: "cross".into(),
-            reason: format!("{} does not use place recognition", options.cross.name()),
-        });
+        // A graph launched whole with another strategy: nothing to do here (not an error, so a
+        // respawning launcher does not restart it again and again).
+        node.log(LogLevel::Info, &format!("cross {} does not use place recognition: idle", options.cross.name()));
+        node.stopped().await;
+        return Ok(Summary::default());
     }
     let state_dir: PathBuf = node.param("state_dir", PathBuf::from("revisit-state/places"))?;
     let threads: usize = node.param("onnx_threads", 0)?;
