@@ -49,17 +49,20 @@ fn strong_change_links_with_place_recognition_and_roll_search_not_with_sift() {
     assert!(cross_tried < 3 * IMAGES * IMAGES, "place recognition sent every pair: {report:#}");
 
     // Without the calibration, visits flown with one camera share it and
-    // refine it jointly: nearly as accurate as the calibrated camera.
+    // refine it jointly: nearly as accurate as the calibrated camera (two
+    // visits, the second flown about 90 degrees from the first).
+    let two = ["s1", "s2"];
+    let calibrated_error = cross_error_px(&reef, &two, &vpr).expect("clicks scored");
     let shared = dir.path().join("shared-camera");
-    let report = reconstruct_uncalibrated(&reef, &three, &shared, &["--shared-camera"]);
-    assert_eq!(fully_registered(&report), three, "{report:#}");
+    let shared_report = reconstruct_uncalibrated(&reef, &two, &shared, &["--shared-camera"]);
+    assert_eq!(fully_registered(&shared_report), two, "{shared_report:#}");
     let camera_ids: Vec<&serde_json::Value> =
-        three.iter().map(|s| &report["sessions"][s]["cameras"]["640x480"]["camera_id"]).collect();
-    assert!(camera_ids.iter().all(|id| *id == camera_ids[0]), "{report:#}");
-    let shared_error = cross_error_px(&reef, &three, &shared).expect("clicks scored");
+        two.iter().map(|s| &shared_report["sessions"][s]["cameras"]["640x480"]["camera_id"]).collect();
+    assert!(camera_ids.iter().all(|id| *id == camera_ids[0]), "{shared_report:#}");
+    let shared_error = cross_error_px(&reef, &two, &shared).expect("clicks scored");
     assert!(
-        shared_error <= 1.25 * error,
-        "shared camera: median cross-visit error {shared_error} px, calibrated {error} px"
+        shared_error <= 1.25 * calibrated_error,
+        "shared camera: median cross-visit error {shared_error} px, calibrated {calibrated_error} px"
     );
 
     // A fourth visit: only its own work is done, and the model is extended.

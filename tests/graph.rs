@@ -1,167 +1,414 @@
-//! The node graph against `revisit reconstruct`: a synthetic 3-visit survey (mild change), its bags played into
-//! the launched graph (ingest, features, places, matcher, mapper: one process each, on loopback, in
-//! their own domain), gives the map that `reconstruct` gives adding the same visits one at a
-//! time, and an independent DDS peer (PyPI cyclonedds) receives the map topics.
+//! The node graph against `revisit reconstruct`, each test with its graph launched in its own domain
+//! on loopback, one process per node:
+//! - a synthetic 3-visit survey (mild change) played from its bags, with the bags' clock, into the
+//!   graph with two matchers, every node killed (SIGKILL) once mid-replay and respawned, gives the
+//!   map that `reconstruct` gives adding the same visits one at a time, stamped with the bags'
+//!   time;
+//! - an independent DDS peer (PyPI cyclonedds) publishes a visit as raw Image and CameraInfo and
+//!   receives the map, which `bag record` records as mcap-ros2-support reads it.
 
 #![allow(clippy::unwrap_used, clippy::expect_used)]
 
 mod common;
 
+use std::collections::BTreeSet;
 use std::io::{BufRead, BufReader};
-use std::path::Path;
-use std::process::{Command, Stdio};
+use std::path::{Path, PathBuf};
+use std::process::{Child, Command, Stdio};
+use std::sync::OnceLock;
 use std::time::{Duration, Instant};
 
 use common::{cross_error_px, fully_registered, read_json, reconstruct, run_ok};
+use revisit_msgs::revisit_msgs::SessionControl;
+use revisit_msgs::sensor_msgs::{CompressedImage, Image};
+use serde_json::{json, Value};
 
-const DOMAIN: &str = "55";
 const VISITS: [&str; 3] = ["s1", "s2", "s3"];
+/// How long a graph may take to map the survey (the tests run two graphs at once on 2 cores).
+const MAP_WITHIN: Duration = Duration::from_secs(1200);
 
-fn in_domain(mut command: Command) -> Command {
-    command.env("ROS_DOMAIN_ID", DOMAIN).env("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST");
-    command.env("RUST_LOG", "info");
+/// The synthetic survey (3 visits x 5 images, mild change, with bags), made once for every test.
+fn reef() -> &'static Path {
+    static REEF: OnceLock<PathBuf> = OnceLock::new();
+    REEF.get_or_init(|| {
+        let dir = tempfile::Builder::new().prefix("revisit-graph-").tempdir().unwrap().keep();
+        let reef = dir.join("reef");
+        let synth = ["synth", "--out", reef.to_str().unwrap(), "--sessions", "3", "--images-per-session", "5"];
+        // Mild change: what is compared is the graph against `reconstruct`; linking through strong
+        // change is `tests/cross.rs`'s.
+        run_ok(&[&synth[..], &["--change", "mild", "--seed", "0", "--bag"]].concat());
+        reef
+    })
+}
+
+/// `reconstruct` adding the visits one at a time, as they come in; its report and options.
+struct Offline {
+    work: PathBuf,
+    report: Value,
+    /// The reconstruction's options as a file the nodes read (`options_file`).
+    options: PathBuf,
+}
+
+fn offline() -> &'static Offline {
+    static OFFLINE: OnceLock<Offline> = OnceLock::new();
+    OFFLINE.get_or_init(|| {
+        let work = reef().parent().unwrap().join("offline");
+        for k in 1..=VISITS.len() {
+            reconstruct(reef(), &VISITS[..k], &work, &["--vpr-top-k", "3"]);
+        }
+        let report = read_json(&work.join("report.json"));
+        assert_eq!(report["models"], 1, "{report:#}");
+        assert_eq!(fully_registered(&report), VISITS, "{report:#}");
+        let options = reef().parent().unwrap().join("options.json");
+        std::fs::write(&options, report["options"].to_string()).unwrap();
+        Offline { work, report, options }
+    })
+}
+
+fn in_domain(mut command: Command, domain: u32) -> Command {
+    command.env("ROS_DOMAIN_ID", domain.to_string()).env("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST");
+    command.env("RUST_LOG", format!("info,{}", revisit_node::QUIET_DDS));
     command
 }
 
-/// A launched graph, stopped with Ctrl-C (SIGINT) when the test ends, passed or not.
-struct Running(std::process::Child);
+/// A launched graph, its log in a file, stopped with Ctrl-C (SIGINT) when the test ends, passed
+/// or not.
+struct Graph {
+    launch: Child,
+    log: PathBuf,
+    domain: u32,
+}
 
-impl Running {
+impl Graph {
+    fn launch(dir: &Path, domain: u32, launch_file: &str) -> Graph {
+        let path = dir.join(format!("graph-{domain}.yaml"));
+        std::fs::write(&path, launch_file).unwrap();
+        let log = dir.join(format!("launch-{domain}.log"));
+        let mut command = in_domain(common::revisit(), domain);
+        let stderr = std::fs::File::create(&log).unwrap();
+        let launch = command.args(["launch", path.to_str().unwrap()]).stderr(stderr).spawn().unwrap();
+        Graph { launch, log, domain }
+    }
+
+    fn log(&self) -> String {
+        std::fs::read_to_string(&self.log).unwrap_or_default()
+    }
+
+    /// Waits until `done` holds, failing if the graph stops or `MAP_WITHIN` passes.
+    fn wait_for(&mut self, what: &str, done: impl Fn(&Graph) -> bool) {
+        let started = Instant::now();
+        while !done(self) {
+            let log = self.log();
+            assert!(started.elapsed() < MAP_WITHIN, "waited {MAP_WITHIN:?} for {what}:\n{log}");
+            assert!(self.launch.try_wait().unwrap().is_none(), "the graph stopped waiting for {what}:\n{log}");
+            std::thread::sleep(Duration::from_millis(200));
+        }
+    }
+
+    /// Plays a visit's bag into the graph (with its `/clock`), waiting for the graph's subscribers.
+    fn play(&self, bag: &Path) {
+        let mut play = in_domain(common::revisit(), self.domain);
+        let args = ["bag", "play", bag.to_str().unwrap(), "--wait-for-subscribers", "--clock"];
+        assert!(play.args(args).status().unwrap().success(), "bag play {}", bag.display());
+    }
+
+    /// The process id of node `name` now, from the launcher's "started NAME (pid N)".
+    fn pid(&self, name: &str) -> Option<u32> {
+        let said = format!("started {name} (pid ");
+        let log = self.log();
+        let line = log.lines().rev().find(|l| l.contains(&said))?;
+        line.split(&said).nth(1)?.trim_end_matches(')').parse().ok()
+    }
+
+    /// Kills node `name` with SIGKILL and waits until the launcher has respawned it and its DDS
+    /// endpoints have had time to match.
+    fn kill(&mut self, name: &str) {
+        let pid = self.pid(name).unwrap_or_else(|| panic!("no pid for {name}:\n{}", self.log()));
+        assert!(Command::new("kill").args(["-KILL", &pid.to_string()]).status().unwrap().success());
+        println!("killed {name} (pid {pid})");
+        self.wait_for(&format!("{name} respawned"), |g| g.pid(name).is_some_and(|p| p != pid));
+        std::thread::sleep(Duration::from_secs(3));
+    }
+
     fn interrupt(&mut self) -> std::process::ExitStatus {
-        let _ = Command::new("kill").args(["-INT", &self.0.id().to_string()]).status();
-        self.0.wait().unwrap()
+        let _ = Command::new("kill").args(["-INT", &self.launch.id().to_string()]).status();
+        self.launch.wait().unwrap()
     }
 }
 
-impl Drop for Running {
+impl Drop for Graph {
     fn drop(&mut self) {
-        if self.0.try_wait().is_ok_and(|status| status.is_none()) {
+        if self.launch.try_wait().is_ok_and(|status| status.is_none()) {
             self.interrupt();
         }
     }
 }
 
-/// The launch file of the whole graph, every node's state under `state`, every node with the
-/// reconstruction's `options`.
-fn launch_file(state: &Path, options: &Path) -> String {
-    let options = options.display();
-    let node = |kind: &str, extra: &str| {
-        format!(
-            "  - node: {kind}\n    parameters:\n      options_file: {options}\n      state_dir: {}/{kind}\n{extra}",
+/// The replay must not drop frames: the camera topics are read reliably (`bag play` and the
+/// Cyclone peer publish reliably; a camera driver's best-effort topics would not match this).
+const INGEST: &str = "      keyframe.min_overlap: 0.0
+      qos_overrides./camera/image_raw/compressed.subscription.reliability: reliable
+      qos_overrides./camera/image_raw/compressed.subscription.depth: 100
+      qos_overrides./camera/image_raw.subscription.reliability: reliable
+      qos_overrides./camera/image_raw.subscription.depth: 100
+      qos_overrides./camera/camera_info.subscription.reliability: reliable
+      qos_overrides./camera/camera_info.subscription.depth: 100
+    remappings:
+      image: /camera/image_raw
+      image/compressed: /camera/image_raw/compressed
+      camera_info: /camera/camera_info
+";
+
+/// A launch file: `parameters` for every node, then each (kind, name, extra YAML lines) with its
+/// state under `state/<name>`.
+fn launch_file(state: &Path, parameters: &str, nodes: &[(&str, &str, &str)], respawn: bool) -> String {
+    let mut file = format!("parameters: {{{parameters}}}\nnodes:\n");
+    for (kind, name, extra) in nodes {
+        let state = state.join(name);
+        let respawn = if respawn { "    respawn: true\n    respawn_delay_s: 0.5\n" } else { "" };
+        // The mapper's state is a `reconstruct` work folder.
+        let folder = if *kind == "mapper" { "work_dir" } else { "state_dir" };
+        file.push_str(&format!(
+            "  - node: {kind}\n    name: {name}\n{respawn}    parameters:\n      {folder}: {}\n{extra}",
             state.display()
-        )
-    };
-    [
-        "nodes:\n".to_owned(),
-        node(
-            "ingest",
-            // A replay must not drop frames: the camera topics are read reliably (`bag play`
-            // publishes reliably; a camera driver's best-effort topics would not match this).
-            "      keyframe.min_overlap: 0.0\n      qos_overrides./camera/image_raw/compressed.subscription.reliability: reliable\n      qos_overrides./camera/image_raw/compressed.subscription.depth: 100\n      qos_overrides./camera/camera_info.subscription.reliability: reliable\n      qos_overrides./camera/camera_info.subscription.depth: 100\n    remappings:\n      image/compressed: /camera/image_raw/compressed\n      camera_info: /camera/camera_info\n",
-        ),
-        node("features", ""),
-        node("places", ""),
-        node("matcher", ""),
-        node("mapper", &format!("      work_dir: {}/mapper\n", state.display())),
-    ]
-    .concat()
+        ));
+    }
+    file
 }
 
-#[test]
-fn a_survey_played_into_the_graph_maps_as_reconstruct_does() {
-    let dir = tempfile::tempdir().unwrap();
-    let reef = dir.path().join("reef");
-    let reef_arg = reef.to_str().unwrap();
-    let synth = ["synth", "--out", reef_arg, "--sessions", "3", "--images-per-session", "5"];
-    // Mild change: what is compared is the graph against `reconstruct`; linking through strong
-    // change is `tests/cross.rs`'s.
-    run_ok(&[&synth[..], &["--change", "mild", "--seed", "0", "--bag"]].concat());
+/// The whole graph with `matchers` matchers, every node with `reconstruct`'s options and
+/// respawned when it dies.
+fn survey_graph(state: &Path, matchers: &[&str]) -> String {
+    let parameters = format!("use_sim_time: true, onnx_threads: 1, options_file: {}", offline().options.display());
+    let mut nodes = vec![("ingest", "ingest", INGEST), ("features", "features", ""), ("places", "places", "")];
+    nodes.extend(matchers.iter().map(|name| ("matcher", *name, "")));
+    nodes.push(("mapper", "mapper", ""));
+    launch_file(state, &parameters, &nodes, true)
+}
 
-    // Offline: the visits added one at a time, as they come in.
-    let offline = dir.path().join("offline");
-    let extra = ["--vpr-top-k", "3"];
-    for k in 1..=VISITS.len() {
-        reconstruct(&reef, &VISITS[..k], &offline, &extra);
-    }
-    let expected = read_json(&offline.join("report.json"));
-    assert_eq!(expected["models"], 1, "{expected:#}");
-    assert_eq!(fully_registered(&expected), VISITS, "{expected:#}");
-    // The graph runs with the very options `reconstruct` used.
-    let options = dir.path().join("options.json");
-    std::fs::write(&options, expected["options"].to_string()).unwrap();
-
-    let state = dir.path().join("state");
-    let launch_path = dir.path().join("graph.yaml");
-    std::fs::write(&launch_path, launch_file(&state, &options)).unwrap();
-    let mut launch = in_domain(common::revisit());
-    let log = std::fs::File::create(dir.path().join("launch.log")).unwrap();
-    let mut launch = Running(launch.args(["launch", launch_path.to_str().unwrap()]).stderr(log).spawn().unwrap());
-    for visit in VISITS {
-        let bag = reef.join("bags").join(visit);
-        let mut play = in_domain(common::revisit());
-        let status = play.args(["bag", "play", bag.to_str().unwrap(), "--wait-for-subscribers"]).status().unwrap();
-        assert!(status.success(), "bag play {visit}");
-    }
-    let started = Instant::now();
-    loop {
-        let log = std::fs::read_to_string(dir.path().join("launch.log")).unwrap_or_default();
-        if log.contains("visit s3 mapped and published") {
-            break;
-        }
-        assert!(started.elapsed() < Duration::from_secs(900), "the graph did not map s3 in 15 min:\n{log}");
-        assert!(launch.0.try_wait().unwrap().is_none(), "the graph stopped:\n{log}");
-        std::thread::sleep(Duration::from_secs(1));
-    }
-    // An independent peer, started late as Foxglove would be, gets the latched map.
-    let listened = dir.path().join("listened.json");
-    let spec = dir.path().join("listen.json");
-    let topics = serde_json::json!({
-        "domain": DOMAIN.parse::<u32>().unwrap(),
-        "timeout": 60,
-        "settle": 3,
-        "topics": {
-            "/map/status": {"type": "revisit_msgs/msg/MapStatus", "count": 1, "transient_local": true},
-            "/map/cloud": {"type": "sensor_msgs/msg/PointCloud2", "count": 1, "transient_local": true},
-            "/map/path/s1": {"type": "nav_msgs/msg/Path", "count": 1, "transient_local": true},
-        }
-    });
-    std::fs::write(&spec, topics.to_string()).unwrap();
-    let mut listener = revisit_testkit::interop_command("listen", &listened, &spec);
-    let mut listener = listener.env("ROS_DOMAIN_ID", DOMAIN).stdout(Stdio::piped()).spawn().unwrap();
-    let mut ready = String::new();
-    BufReader::new(listener.stdout.as_mut().unwrap()).read_line(&mut ready).unwrap();
-    assert_eq!(ready.trim(), "ready");
-
-    let listened_ok = listener.wait().unwrap().success();
-    assert!(launch.interrupt().success(), "the graph did not stop cleanly on Ctrl-C");
-
-    // The same map: every visit registered as offline, the same cross-visit error.
-    let graph = state.join("mapper");
-    let got = read_json(&graph.join("report.json"));
-    assert_eq!(fully_registered(&got), fully_registered(&expected), "{got:#}");
+/// The graph's map is `reconstruct`'s: every visit registered as offline, the same cross-visit
+/// error, every cross-visit pair from the matcher nodes.
+fn assert_same_map(work: &Path) -> Value {
+    let expected = &offline().report;
+    let got = read_json(&work.join("report.json"));
+    assert_eq!(fully_registered(&got), fully_registered(expected), "{got:#}");
     assert_eq!(got["models"], expected["models"]);
     for visit in VISITS {
         assert_eq!(got["sessions"][visit]["registered"], expected["sessions"][visit]["registered"], "{visit}");
     }
-    let (want, have) = (cross_error_px(&reef, &VISITS, &offline), cross_error_px(&reef, &VISITS, &graph));
-    println!("cross-visit error: reconstruct {want:?} px, graph {have:?} px");
-    let (want, have) = (want.expect("offline clicks scored"), have.expect("graph clicks scored"));
+    let want = cross_error_px(reef(), &VISITS, &offline().work).expect("offline clicks scored");
+    let have = cross_error_px(reef(), &VISITS, work).expect("graph clicks scored");
+    println!("cross-visit error: reconstruct {want} px, graph {have} px");
     assert!((have - want).abs() <= (0.1 * want).max(0.2), "graph {have} px, reconstruct {want} px");
-    // Every cross-visit pair came from the matcher node: the mapper matched none itself.
-    assert_eq!(got["cross"]["learned_matching"]["done"], 0, "{got:#}");
+    assert_eq!(got["cross"]["learned_matching"]["done"], 0, "the mapper matched pairs itself: {got:#}");
+    got
+}
 
-    // What the independent peer received.
-    assert!(listened_ok, "the Cyclone DDS listener failed");
-    let heard = read_json(&listened);
-    let status = heard["/map/status"].as_array().unwrap().last().unwrap().clone();
+/// A node's journal lines starting with `kind` (e.g. `done`), split on tabs or spaces.
+fn journal(state: &Path, node: &str, kind: &str) -> Vec<Vec<String>> {
+    let text = std::fs::read_to_string(state.join(node).join("journal")).unwrap_or_default();
+    text.lines()
+        .map(|l| l.split(['\t', ' ']).map(str::to_owned).collect::<Vec<_>>())
+        .filter(|words| words[0] == kind)
+        .collect()
+}
+
+/// Starts the Cyclone DDS peer listening for `topics`; returns once it is ready.
+fn listener(dir: &Path, domain: u32, topics: Value, settle_s: u64) -> (Child, PathBuf) {
+    let heard = dir.join(format!("heard-{domain}.json"));
+    let spec = dir.join(format!("listen-{domain}.json"));
+    let spec_json = json!({"domain": domain, "timeout": MAP_WITHIN.as_secs(), "settle": settle_s, "topics": topics});
+    std::fs::write(&spec, spec_json.to_string()).unwrap();
+    let mut listener = revisit_testkit::interop_command("listen", &heard, &spec);
+    let mut listener = listener.stdout(Stdio::piped()).spawn().unwrap();
+    let mut ready = String::new();
+    BufReader::new(listener.stdout.as_mut().unwrap()).read_line(&mut ready).unwrap();
+    assert_eq!(ready.trim(), "ready");
+    (listener, heard)
+}
+
+fn last(heard: &Value, topic: &str) -> Value {
+    heard[topic].as_array().unwrap().last().unwrap_or_else(|| panic!("nothing heard on {topic}")).clone()
+}
+
+fn stamp_ns(message: &Value) -> u64 {
+    let stamp = &message["header"]["stamp"];
+    stamp["sec"].as_u64().unwrap() * 1_000_000_000 + stamp["nanosec"].as_u64().unwrap()
+}
+
+#[test]
+fn a_survey_played_into_the_graph_maps_as_reconstruct_does_with_every_node_killed_once() {
+    const DOMAIN: u32 = 55;
+    let dir = tempfile::tempdir().unwrap();
+    let state = dir.path().join("state");
+    let matchers = ["matcher_a", "matcher_b"];
+    let mut graph = Graph::launch(dir.path(), DOMAIN, &survey_graph(&state, &matchers));
+    let bag = |visit: &str| reef().join("bags").join(visit);
+    let described = |state: &Path| journal(state, "features", "done").len();
+
+    // The features node mid-way through the first visit.
+    graph.play(&bag("s1"));
+    graph.wait_for("2 keyframes described", |_| described(&state) >= 2);
+    graph.kill("features");
+    // The ingest node between visits, once its first visit is described (its backlog is gone
+    // with it; a live camera's frames sent while it is down are lost, as with any driver).
+    graph.wait_for("s1 described", |g| described(&state) >= 5 && g.log().contains("visit s1 ended"));
+    graph.kill("ingest");
+    graph.play(&bag("s2"));
+    graph.play(&bag("s3"));
+    // The places node once it answered s2 (it must answer s3 from its index after the restart).
+    graph.wait_for("s2's candidates", |_| journal(&state, "places", "answered").iter().any(|w| w[1] == "s2"));
+    graph.kill("places");
+    // A matcher in the middle of its pairs.
+    let matched = journal(&state, "matcher_a", "done").len();
+    graph.wait_for("a pair matched", |_| journal(&state, "matcher_a", "done").len() > matched);
+    graph.kill("matcher_a");
+    // The mapper while it maps the last visit.
+    graph.wait_for("s3 mapping", |g| g.log().contains("visit s3 is complete: mapping"));
+    graph.kill("mapper");
+    let mapped = |state: &Path| {
+        let text = std::fs::read_to_string(state.join("mapper").join("mapper.journal")).unwrap_or_default();
+        text.lines().any(|l| l.contains(r#""kind":"mapped","session":"s3""#))
+    };
+    graph.wait_for("s3 mapped after the restart", |_| mapped(&state));
+
+    // An independent peer, started late as Foxglove would be, gets the latched map.
+    let topics = json!({
+        "/map/status": {"type": "revisit_msgs/msg/MapStatus", "count": 1, "transient_local": true},
+        "/map/cloud": {"type": "sensor_msgs/msg/PointCloud2", "count": 1, "transient_local": true},
+        "/map/path/s1": {"type": "nav_msgs/msg/Path", "count": 1, "transient_local": true},
+        // What the ingest node said since its restart: s2's and s3's START and END.
+        "/visits": {"type": "revisit_msgs/msg/SessionControl", "count": 4, "transient_local": true},
+    });
+    let (mut listener, heard) = listener(dir.path(), DOMAIN, topics, 3);
+    let listened = listener.wait().unwrap().success();
+    assert!(graph.interrupt().success(), "the graph did not stop cleanly on Ctrl-C");
+
+    let got = assert_same_map(&state.join("mapper"));
+    // The two matchers shared the pairs (`tests/matchers.rs` checks that none is done twice
+    // when no matcher dies) and did every pair `reconstruct` tried.
+    let done: Vec<BTreeSet<Vec<String>>> =
+        matchers.iter().map(|m| journal(&state, m, "done").into_iter().collect()).collect();
+    println!("pairs matched: {} by {}, {} by {}", done[0].len(), matchers[0], done[1].len(), matchers[1]);
+    assert!(done.iter().all(|d| !d.is_empty()), "a matcher did no pair");
+    let tried = offline().report["pairs"]["cross"]["tried"].as_u64().unwrap();
+    assert_eq!(done[0].union(&done[1]).count() as u64, tried, "{got:#}");
+
+    // What the independent peer received: the map stamped with its newest keyframe, the nodes'
+    // own messages with the bags' clock (use_sim_time).
+    assert!(listened, "the Cyclone DDS listener failed");
+    let heard = read_json(&heard);
+    let status = last(&heard, "/map/status");
     assert_eq!(status["state"], 3, "{status:#}"); // READY
     assert_eq!(status["sessions"].as_array().unwrap().len(), 3, "{status:#}");
-    let cloud = heard["/map/cloud"].as_array().unwrap().last().unwrap().clone();
+    let cloud = last(&heard, "/map/cloud");
     let names: Vec<&str> = cloud["fields"].as_array().unwrap().iter().map(|f| f["name"].as_str().unwrap()).collect();
     assert_eq!(names, ["x", "y", "z", "rgb", "session"]);
     assert!(cloud["width"].as_u64().unwrap() > 100, "{}", cloud["width"]);
     assert_eq!(cloud["width"], status["points"]);
-    let path = heard["/map/path/s1"].as_array().unwrap().last().unwrap().clone();
+    let path = last(&heard, "/map/path/s1");
     assert_eq!(path["header"]["frame_id"], "map");
     assert_eq!(path["poses"].as_array().unwrap().len() as u64, got["sessions"]["s1"]["registered"].as_u64().unwrap());
+    let bag_time = |visit| revisit_bag::Bag::open(&bag(visit)).unwrap().info().unwrap().time_range_ns().unwrap();
+    let (first, _) = bag_time("s1");
+    let (_, end) = bag_time("s3");
+    let visits = heard["/visits"].as_array().unwrap();
+    assert_eq!(visits.len(), 4, "{visits:?}");
+    let map = [("status", &status), ("cloud", &cloud), ("path", &path)];
+    for (topic, message) in map.into_iter().chain(visits.iter().map(|v| ("visits", v))) {
+        let stamp = stamp_ns(message);
+        assert!(
+            (first..=end + 1_000_000_000).contains(&stamp),
+            "{topic} stamped {stamp} ns, not in the bags' time {first}..{end}"
+        );
+    }
+}
+
+/// A visit's frames as a camera driver publishes them: raw RGB Image and CameraInfo (from the
+/// visit's bag), between a session START and END.
+fn camera_topics(bag: &Path, visit: &str) -> Value {
+    let (mut images, mut infos) = (vec![Value::Null], vec![Value::Null]);
+    for message in revisit_bag::Bag::open(bag).unwrap().messages() {
+        let message = message.unwrap();
+        let decoded = (revisit_msgs::find(&message.topic.type_name).unwrap().decode_json)(&message.data).unwrap();
+        match message.topic.name.as_str() {
+            "/camera/image_raw/compressed" => {
+                let compressed: CompressedImage = serde_json::from_value(decoded).unwrap();
+                let rgb = image::load_from_memory(&compressed.data).unwrap().to_rgb8();
+                let raw = Image {
+                    header: compressed.header,
+                    height: rgb.height(),
+                    width: rgb.width(),
+                    encoding: "rgb8".into(),
+                    is_bigendian: 0,
+                    step: 3 * rgb.width(),
+                    data: rgb.into_raw(),
+                };
+                images.push(serde_json::to_value(raw).unwrap());
+            }
+            "/camera/camera_info" => infos.push(decoded),
+            _ => {}
+        }
+    }
+    let control = |command| SessionControl { command, session: visit.into(), ..SessionControl::default() };
+    let mut session = vec![Value::Null; images.len() + 1];
+    session[0] = serde_json::to_value(control(SessionControl::START)).unwrap();
+    session[images.len()] = serde_json::to_value(control(SessionControl::END)).unwrap();
+    json!({
+        "/camera/image_raw": {"type": "sensor_msgs/msg/Image", "values": images},
+        "/camera/camera_info": {"type": "sensor_msgs/msg/CameraInfo", "values": infos},
+        "/revisit/session": {"type": "revisit_msgs/msg/SessionControl", "values": session, "transient_local": true},
+    })
+}
+
+#[test]
+fn an_independent_peer_publishes_a_visit_and_receives_the_map() {
+    const DOMAIN: u32 = 56;
+    let dir = tempfile::tempdir().unwrap();
+    let state = dir.path().join("state");
+    let nodes = [("ingest", "ingest", INGEST), ("features", "features", ""), ("mapper", "mapper", "")];
+    let mut graph = Graph::launch(dir.path(), DOMAIN, &launch_file(&state, "cross: sift", &nodes, false));
+    let map_topics = ["/map/status", "/map/cloud", "/map/path/peer"];
+    let types = ["revisit_msgs/msg/MapStatus", "sensor_msgs/msg/PointCloud2", "nav_msgs/msg/Path"];
+    // MAPPING, then READY with the map.
+    let counts = [2, 1, 1];
+    let topics: serde_json::Map<String, Value> = (0..3)
+        .map(|i| (map_topics[i].to_owned(), json!({"type": types[i], "count": counts[i], "transient_local": true})))
+        .collect();
+    let (listener, heard) = listener(dir.path(), DOMAIN, Value::Object(topics), 2);
+    let recorded = dir.path().join("recorded");
+    let mut record = in_domain(common::revisit(), DOMAIN);
+    let record_args =
+        ["bag", "record", "--out", recorded.to_str().unwrap(), "--max-messages", "4", "--duration", "1200"];
+    let recorder = record.args(record_args).args(map_topics).stderr(Stdio::piped()).spawn().unwrap();
+
+    // The peer publishes the first visit's frames as a camera driver would, two a second.
+    let spec = dir.path().join("talk.json");
+    let talk = json!({"domain": DOMAIN, "timeout": 120, "rate_hz": 2, "topics": camera_topics(&reef().join("bags/s1"), "peer")});
+    std::fs::write(&spec, talk.to_string()).unwrap();
+    revisit_testkit::interop("talk", Path::new("-"), &spec);
+    graph.wait_for("the peer's visit mapped", |g| g.log().contains("visit peer mapped and published"));
+    let heard_ok = listener.wait_with_output().unwrap().status.success();
+    let recorder = recorder.wait_with_output().unwrap();
+    assert!(recorder.status.success(), "bag record: {}", String::from_utf8_lossy(&recorder.stderr));
+    assert!(graph.interrupt().success(), "the graph did not stop cleanly on Ctrl-C");
+
+    assert!(heard_ok, "the Cyclone DDS listener failed");
+    let heard = read_json(&heard);
+    let status = last(&heard, "/map/status");
+    assert_eq!(status["state"], 3, "{status:#}"); // READY
+    let report = read_json(&state.join("mapper/report.json"));
+    assert_eq!(fully_registered(&report), ["peer"], "{report:#}");
+    let path = last(&heard, "/map/path/peer");
+    assert_eq!(path["poses"].as_array().unwrap().len(), 5);
+    assert_eq!(last(&heard, "/map/cloud")["width"], status["points"]);
+    // What `bag record` wrote reads in mcap-ros2-support and rosbags as the peer heard it.
+    let expected: serde_json::Map<String, Value> = map_topics
+        .iter()
+        .zip(types)
+        .map(|(topic, ty)| (topic.to_string(), json!({"type": ty, "values": heard[topic]})))
+        .collect();
+    let expected_path = dir.path().join("expected.json");
+    std::fs::write(&expected_path, Value::Object(expected).to_string()).unwrap();
+    revisit_testkit::interop("check", &recorded, &expected_path);
 }

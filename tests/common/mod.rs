@@ -21,7 +21,8 @@ pub fn models() -> PathBuf {
 /// The `revisit` binary with the project's Python and the shared models.
 pub fn revisit() -> Command {
     let mut command = Command::new(env!("CARGO_BIN_EXE_revisit"));
-    command.env("REVISIT_PYTHON", python()).env("REVISIT_MODELS", models()).env("RUST_LOG", "warn");
+    command.env("REVISIT_PYTHON", python()).env("REVISIT_MODELS", models());
+    command.env("RUST_LOG", format!("warn,{}", revisit_node::QUIET_DDS));
     command
 }
 

@@ -9,11 +9,26 @@ prints one JSON line with a summary of each model on stdout. Logs go to stderr.
 
 import argparse
 import json
+import os
 import shutil
 import sqlite3
 import sys
+import threading
 import time
 from pathlib import Path
+
+
+def exit_with_parent() -> None:
+    """Ends this process when the one that started it dies (a mapper node killed with SIGKILL
+    must not leave COLMAP writing into the folder its restart maps again)."""
+    parent = os.getppid()
+
+    def watch() -> None:
+        while os.getppid() == parent:
+            time.sleep(0.2)
+        os._exit(1)
+
+    threading.Thread(target=watch, daemon=True).start()
 
 
 def all_cameras(database: Path) -> set:
@@ -96,4 +111,5 @@ def main() -> int:
 
 
 if __name__ == "__main__":
+    exit_with_parent()
     sys.exit(main())

@@ -4,7 +4,8 @@
 //! too.
 //!
 //! Parameters: `session` (the visit's name; when unset, visits start and end by session-control
-//! messages and frames outside a visit are dropped), `split_gap_s`, `keyframe.min_overlap`
+//! messages and frames outside a visit are dropped, but for those that come just before their
+//! visit's START and are stamped at or after it), `split_gap_s`, `keyframe.min_overlap`
 //! (default 0.7; 0 or less keeps every frame), `keyframe.every_s`, `keyframe.distance_m`,
 //! `camera` (default `cam0`). `/revisit/session` is read latched (transient local, as `bag pack`
 //! and `synth --bag` record it); a volatile publisher needs
@@ -86,6 +87,7 @@ pub async fn run(node: &mut Node) -> Result<Summary, NodeError> {
     let mut ingest = Ingest {
         stream: VisitStream::new(session.as_deref().unwrap_or("visit"), split_gap_s, keyframes),
         driven_by_control: session.is_none(),
+        early: Default::default(),
         stage: node.stage("frames"),
         last_stamp_ns: None,
     };
@@ -135,6 +137,10 @@ pub async fn run(node: &mut Node) -> Result<Summary, NodeError> {
                     }
                 };
                 publish(node, &mut out, events).await?;
+                if message.command == SessionControl::START {
+                    let early = ingest.early_frames(&mut out, message.header.stamp.as_nanos());
+                    take(node, &mut out, &mut ingest, early, &camera_info, prior).await?;
+                }
                 continue;
             }
         };
@@ -149,16 +155,41 @@ pub async fn run(node: &mut Node) -> Result<Summary, NodeError> {
     offer(node, &mut out, &mut ingest, frames, &camera_info, prior).await?;
     let events = ingest.stream.end();
     publish(node, &mut out, events).await?;
+    ingest.drop_frames(&mut out, ingest.early.len());
     Ok(out.summary)
 }
+
+/// Frames outside a visit kept, when visits are named by session control, in case their visit's
+/// START is still on its way (topics are not ordered with each other).
+const EARLY_FRAMES: usize = 30;
 
 /// The visit stream and what it needs to judge frames.
 struct Ingest {
     stream: VisitStream<Pending>,
-    /// Frames outside a visit are dropped when visits are named by session control.
+    /// Frames outside a visit are dropped when visits are named by session control (after a
+    /// moment in `early`).
     driven_by_control: bool,
+    early: std::collections::VecDeque<Frame>,
     stage: Stage,
     last_stamp_ns: Option<u64>,
+}
+
+impl Ingest {
+    fn drop_frames(&self, out: &mut Outputs, count: usize) {
+        self.stage.dropped(count as u64);
+        out.summary.dropped += count as u64;
+    }
+
+    /// The early frames stamped at or after a START stamped `start_ns` (none when it has no
+    /// stamp); the others are dropped.
+    fn early_frames(&mut self, out: &mut Outputs, start_ns: i64) -> Vec<Result<Frame, String>> {
+        let early = std::mem::take(&mut self.early);
+        let (kept, late): (Vec<Frame>, Vec<Frame>) = early
+            .into_iter()
+            .partition(|f| start_ns > 0 && f.time_ns(f.log_time_ns) >= u64::try_from(start_ns).unwrap_or(u64::MAX));
+        self.drop_frames(out, late.len());
+        kept.into_iter().map(Ok).collect()
+    }
 }
 
 /// Offers frames to the visit stream, publishing the keyframes it keeps.
@@ -170,21 +201,37 @@ async fn offer(
     camera_info: &CameraInfo,
     prior: Option<PoseWithCovariance>,
 ) -> Result<(), NodeError> {
-    for frame in frames {
+    for _ in &frames {
         ingest.stage.received();
         out.summary.frames += 1;
+    }
+    take(node, out, ingest, frames, camera_info, prior).await
+}
+
+/// Takes frames (counted as received) into the visit stream, publishing the keyframes it keeps.
+async fn take(
+    node: &Node,
+    out: &mut Outputs,
+    ingest: &mut Ingest,
+    frames: Vec<Result<Frame, String>>,
+    camera_info: &CameraInfo,
+    prior: Option<PoseWithCovariance>,
+) -> Result<(), NodeError> {
+    for frame in frames {
         let started = Instant::now();
         let frame = match frame {
-            Ok(frame) if !(ingest.driven_by_control && ingest.stream.visit().is_none()) => frame,
-            Ok(_) => {
-                ingest.stage.dropped(1);
-                out.summary.dropped += 1;
+            Ok(frame) if ingest.driven_by_control && ingest.stream.visit().is_none() => {
+                if ingest.early.len() == EARLY_FRAMES {
+                    ingest.early.pop_front();
+                    ingest.drop_frames(out, 1);
+                }
+                ingest.early.push_back(frame);
                 continue;
             }
+            Ok(frame) => frame,
             Err(why) => {
                 node.log(LogLevel::Warn, &format!("frame dropped: {why}"));
-                ingest.stage.dropped(1);
-                out.summary.dropped += 1;
+                ingest.drop_frames(out, 1);
                 continue;
             }
         };
@@ -192,8 +239,7 @@ async fn offer(
         if ingest.last_stamp_ns == Some(time_ns) {
             // The same frame delivered twice (RustDDS repeats a large fragmented sample now and
             // then): dropped.
-            ingest.stage.dropped(1);
-            out.summary.dropped += 1;
+            ingest.drop_frames(out, 1);
             continue;
         }
         ingest.last_stamp_ns = Some(time_ns);
@@ -201,8 +247,7 @@ async fn offer(
             Ok(image) => image,
             Err(error) => {
                 node.log(LogLevel::Warn, &format!("frame dropped: {error}"));
-                ingest.stage.dropped(1);
-                out.summary.dropped += 1;
+                ingest.drop_frames(out, 1);
                 continue;
             }
         };

@@ -113,3 +113,55 @@ async fn played_bag_gives_the_offline_keyframes() {
     player.shutdown().await;
     listener.shutdown().await;
 }
+
+/// A frame that comes before its visit's START (topics are not ordered with each other) but is
+/// stamped after it joins the visit; one stamped before it does not.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_frame_that_beats_its_start_joins_the_visit() {
+    let domain = Domain { id: 44, localhost_only: true };
+    let words = ["-r", "image/compressed:=/camera", "-p", "keyframe.min_overlap:=0"].map(String::from);
+    let mut ingest_node = Node::start_in(domain, revisit_ingest_node::NAME, &RosArgs::parse(&words).unwrap()).unwrap();
+    let mut camera = Node::start_in(domain, "camera", &RosArgs::default()).unwrap();
+    let images = camera.publisher::<CompressedImage>("/camera", revisit_node::RELIABLE).unwrap();
+    let control = camera.publisher::<SessionControl>("/revisit/session", revisit_node::LATCHED).unwrap();
+    let keyframes = camera.subscription::<Keyframe>("/keyframes", WORK_QUEUE).unwrap();
+    let running = tokio::spawn(async move {
+        let summary = revisit_ingest_node::run(&mut ingest_node).await;
+        (ingest_node, summary)
+    });
+    while camera.readers_of("/camera") == 0 || camera.readers_of("/revisit/session") == 0 {
+        tokio::time::sleep(Duration::from_millis(50)).await;
+    }
+    tokio::time::sleep(Duration::from_millis(500)).await;
+    let frame = |ns: u64| {
+        let mut png = Vec::new();
+        let image = DynamicImage::ImageRgb8(RgbImage::from_fn(64, 48, |x, y| image::Rgb([x as u8, y as u8, 0])));
+        image.write_to(&mut std::io::Cursor::new(&mut png), ImageFormat::Png).unwrap();
+        let header = Header { stamp: Time::from_nanos(ns as i64), frame_id: "camera".into() };
+        CompressedImage { header, format: "png".into(), data: png }
+    };
+    let say = |command, ns: u64| SessionControl {
+        header: Header { stamp: Time::from_nanos(ns as i64), frame_id: String::new() },
+        command,
+        session: "a".into(),
+        ..SessionControl::default()
+    };
+    let pause = || tokio::time::sleep(Duration::from_millis(300));
+    images.async_publish(frame(T0_NS - 1_000_000)).await.unwrap(); // before the visit
+    images.async_publish(frame(T0_NS + 1_000_000)).await.unwrap(); // in it, ahead of its START
+    pause().await;
+    control.async_publish(say(SessionControl::START, T0_NS)).await.unwrap();
+    pause().await;
+    images.async_publish(frame(T0_NS + 2_000_000)).await.unwrap();
+    pause().await;
+    control.async_publish(say(SessionControl::END, T0_NS + 3_000_000)).await.unwrap();
+
+    let mut keyframes = std::pin::pin!(keyframes.async_stream());
+    let mut stamps = Vec::new();
+    while let Ok(Some(Ok((keyframe, _)))) = tokio::time::timeout(Duration::from_secs(3), keyframes.next()).await {
+        stamps.push(keyframe.header.stamp.as_nanos() as u64);
+    }
+    assert_eq!(stamps, [T0_NS + 1_000_000, T0_NS + 2_000_000]);
+    running.abort();
+    camera.shutdown().await;
+}

@@ -4,8 +4,9 @@
 //! (`matches`) come in; the map goes out, latched for late subscribers such as Foxglove:
 //! `map/cloud` (PointCloud2 with x, y, z, rgb and session), `map/cameras` (PoseArray),
 //! `map/path/<visit>` (one nav_msgs/Path per visit) and `map/status` (MapStatus: what `report.json`
-//! holds). The work folder holds what `revisit reconstruct` writes (model/, points.ply, poses.csv,
-//! report.json), so the map opens in COLMAP too.
+//! holds), each stamped with the newest keyframe in the map (the data's time: the bag's on a
+//! replay, and the same after a restart). The work folder holds what `revisit reconstruct` writes
+//! (model/, points.ply, poses.csv, report.json), so the map opens in COLMAP too.
 //!
 //! A visit is mapped once its END has come (with its keyframe count) and everything it needs has:
 //! every keyframe and its features and, with `places:=true` (the default when visits are linked by
@@ -79,6 +80,12 @@ enum Entry {
     Mapped {
         session: String,
     },
+    /// A visit's newest keyframe so far (its header stamp, ns): the map is stamped with the
+    /// newest keyframe it holds.
+    Newest {
+        session: String,
+        stamp_ns: i64,
+    },
 }
 
 /// What the journal says.
@@ -93,6 +100,8 @@ struct Inputs {
     /// Matchers' answers by (earlier image, later image).
     found: BTreeMap<(String, String), CrossVisitMatches>,
     mapped: BTreeSet<String>,
+    /// Each visit's newest keyframe stamp, ns.
+    newest_ns: BTreeMap<String, i64>,
 }
 
 impl Inputs {
@@ -112,7 +121,17 @@ impl Inputs {
             Entry::Mapped { session } => {
                 self.mapped.insert(session);
             }
+            Entry::Newest { session, stamp_ns } => {
+                self.newest_ns.insert(session, stamp_ns);
+            }
         }
+    }
+
+    /// The map's stamp: the newest keyframe of the visits in it (the data's time, the bag's on a
+    /// replay, whatever the node's clock says; the same map gets the same stamp after a restart).
+    fn map_stamp(&self, visits: &[String]) -> revisit_msgs::builtin_interfaces::Time {
+        let newest = visits.iter().filter_map(|v| self.newest_ns.get(v)).max().copied().unwrap_or(0);
+        revisit_msgs::builtin_interfaces::Time::from_nanos(newest)
     }
 }
 
@@ -121,7 +140,8 @@ fn full(session: &str, file: &str) -> String {
 }
 
 struct Outputs {
-    header: Header,
+    /// The map's frame.
+    frame_id: String,
     cloud: Publisher<PointCloud2>,
     cameras: Publisher<PoseArray>,
     status: Publisher<MapStatus>,
@@ -161,7 +181,7 @@ pub async fn run(node: &mut Node) -> Result<Summary, NodeError> {
     let candidates = node.subscription::<PlaceCandidates>("places/candidates", WORK_QUEUE)?;
     let found = node.subscription::<CrossVisitMatches>("matches", WORK_QUEUE)?;
     let mut out = Outputs {
-        header: Header { frame_id, ..Header::default() },
+        frame_id,
         cloud: node.publisher("map/cloud", LATCHED)?,
         cameras: node.publisher("map/cameras", LATCHED)?,
         status: node.publisher("map/status", LATCHED)?,
@@ -178,8 +198,8 @@ pub async fn run(node: &mut Node) -> Result<Summary, NodeError> {
     }
     // A restarted mapper shows the map it has.
     if mapper.workspace.dir().join("report.json").exists() {
-        let outputs = tokio::task::block_in_place(|| map_outputs(&mapper.workspace, node, &out))?;
-        publish_map(node, &mut out, outputs).await?;
+        let (outputs, header) = tokio::task::block_in_place(|| mapper.map_outputs(&out.frame_id))?;
+        publish_map(node, &mut out, outputs, header).await?;
     }
     let stopped = node.stopped();
     let mut stopped = std::pin::pin!(stopped);
@@ -214,12 +234,12 @@ pub async fn run(node: &mut Node) -> Result<Summary, NodeError> {
         }
         while let Some(session) = tokio::task::block_in_place(|| mapper.ready()).map_err(work)? {
             node.log(LogLevel::Info, &format!("visit {session} is complete: mapping"));
-            let _ =
-                out.status.async_publish(status(&out.header, MapStatus::MAPPING, &format!("mapping {session}"))).await;
+            let header = mapper.header(&out.frame_id);
+            let _ = out.status.async_publish(status(&header, MapStatus::MAPPING, &format!("mapping {session}"))).await;
             match tokio::task::block_in_place(|| mapper.map(&session, &cancel)) {
                 Ok(report) => {
-                    let outputs = tokio::task::block_in_place(|| map_outputs(&mapper.workspace, node, &out))?;
-                    publish_map(node, &mut out, outputs).await?;
+                    let (outputs, header) = tokio::task::block_in_place(|| mapper.map_outputs(&out.frame_id))?;
+                    publish_map(node, &mut out, outputs, header).await?;
                     let (models, unlinked) = (report.models, report.unlinked_sessions);
                     let said =
                         format!("visit {session} mapped and published: {models} model(s), unlinked {unlinked:?}");
@@ -228,7 +248,8 @@ pub async fn run(node: &mut Node) -> Result<Summary, NodeError> {
                 Err(revisit_pipeline::PipelineError::Cancelled) => break,
                 Err(error) => {
                     node.log(LogLevel::Error, &format!("mapping {session} failed: {error}"));
-                    let _ = out.status.async_publish(status(&out.header, MapStatus::FAILED, &error.to_string())).await;
+                    let header = mapper.header(&out.frame_id);
+                    let _ = out.status.async_publish(status(&header, MapStatus::FAILED, &error.to_string())).await;
                     return Err(work(error));
                 }
             }
@@ -317,6 +338,10 @@ impl Mapper {
         if !self.inputs.visits.contains(&keyframe.session) {
             self.record(Entry::Visit { session: keyframe.session.clone() })?;
         }
+        let stamp_ns = keyframe.header.stamp.as_nanos();
+        if self.inputs.newest_ns.get(&keyframe.session).is_none_or(|newest| stamp_ns > *newest) {
+            self.record(Entry::Newest { session: keyframe.session.clone(), stamp_ns })?;
+        }
         let known = self.workspace.sessions().iter().any(|s| s.name == keyframe.session);
         let all_mapped = self.workspace.sessions().iter().all(|s| self.inputs.mapped.contains(&s.name));
         // A new visit enters the store once every visit in it is mapped and none waits before it.
@@ -401,6 +426,24 @@ impl Mapper {
         Ok(None)
     }
 
+    /// A header in the map's frame stamped as the map is ([`Inputs::map_stamp`]).
+    fn header(&self, frame_id: &str) -> Header {
+        let visits: Vec<String> = self.workspace.sessions().iter().map(|s| s.name.clone()).collect();
+        Header { stamp: self.inputs.map_stamp(&visits), frame_id: frame_id.to_owned() }
+    }
+
+    /// The work folder's map (its `report.json` and chosen model) as messages (`None`: COLMAP
+    /// registered no model), and their header.
+    fn map_outputs(&self, frame_id: &str) -> Result<(Option<MapMessages>, Header), NodeError> {
+        let work = |e: String| NodeError::Work(e);
+        let header = self.header(frame_id);
+        let report = Report::read(&self.workspace.dir().join("report.json")).map_err(|e| work(e.to_string()))?;
+        let Some(model_dir) = &report.chosen_model else { return Ok((None, header)) };
+        let model = revisit_colmap::read_model(model_dir).map_err(|e| work(e.to_string()))?;
+        let visits: Vec<String> = self.workspace.sessions().iter().map(|s| s.name.clone()).collect();
+        Ok((Some(messages::map_messages(&header, &model, &report, &visits)), header))
+    }
+
     /// Stores the matchers' answers for the visit's pairs, then runs the reconstruction.
     fn map(&mut self, session: &str, cancel: &Cancel) -> Result<Report, revisit_pipeline::PipelineError> {
         let ids = self.workspace.store().image_ids()?;
@@ -429,22 +472,15 @@ impl Mapper {
     }
 }
 
-/// The work folder's map (its `report.json` and chosen model) as messages; `None`: COLMAP
-/// registered no model.
-fn map_outputs(workspace: &Workspace, node: &Node, out: &Outputs) -> Result<Option<MapMessages>, NodeError> {
-    let header = Header { stamp: node.header("").stamp, frame_id: out.header.frame_id.clone() };
-    let work = |e: String| NodeError::Work(e);
-    let report = Report::read(&workspace.dir().join("report.json")).map_err(|e| work(e.to_string()))?;
-    let Some(model_dir) = &report.chosen_model else { return Ok(None) };
-    let model = revisit_colmap::read_model(model_dir).map_err(|e| work(e.to_string()))?;
-    let visits: Vec<String> = workspace.sessions().iter().map(|s| s.name.clone()).collect();
-    Ok(Some(messages::map_messages(&header, &model, &report, &visits)))
-}
-
 /// Publishes the map on the map topics.
-async fn publish_map(node: &mut Node, out: &mut Outputs, outputs: Option<MapMessages>) -> Result<(), NodeError> {
+async fn publish_map(
+    node: &mut Node,
+    out: &mut Outputs,
+    outputs: Option<MapMessages>,
+    header: Header,
+) -> Result<(), NodeError> {
     let Some(MapMessages { cloud, paths, cameras, status: map_status }) = outputs else {
-        let message = status(&out.header, MapStatus::FAILED, "COLMAP registered no model");
+        let message = status(&header, MapStatus::FAILED, "COLMAP registered no model");
         return out.status.async_publish(message).await.map_err(dds);
     };
     out.cloud.async_publish(cloud).await.map_err(dds)?;

@@ -13,8 +13,8 @@
 //! Parameters: `options_file` and `cross` (the reconstruction's options, as the mapper's),
 //! `state_dir` (default `revisit-state/matcher`), `models`, `onnx_threads`.
 //!
-//! Restartable: features are kept in a store, and a pair is journalled as done only after its
-//! answer is published.
+//! Restartable: features are kept in a store, the pairs asked for are journalled when they come,
+//! and a pair is journalled as done only after its answer is published.
 
 use std::collections::{BTreeMap, BTreeSet};
 use std::path::PathBuf;
@@ -24,7 +24,7 @@ use futures::StreamExt;
 use revisit_core::Roll;
 use revisit_msgs::diagnostic_msgs::KeyValue;
 use revisit_msgs::revisit_msgs::{CrossVisitMatches, Features, PlaceCandidates};
-use revisit_node::{Guid, Journal, LogLevel, Node, NodeError, WORK_QUEUE};
+use revisit_node::{Guid, Journal, LogLevel, Node, NodeError, Stage, WORK_QUEUE};
 use revisit_pipeline::cache::FeatureCache;
 use revisit_pipeline::learned::Learned;
 use revisit_pipeline::locate::Tools;
@@ -99,10 +99,13 @@ pub async fn run(node: &mut Node) -> Result<Summary, NodeError> {
         cache.store().image_ids().map_err(|e| work(e.to_string()))?.into_iter().map(|(name, id)| (id, name)).collect();
     let keys = cache.store().learned_feature_keys(options.learned.name()).map_err(|e| work(e.to_string()))?;
     let held = keys.into_iter().filter_map(|(id, roll)| Some((names.get(&id)?.clone(), roll))).collect();
-    let mut answered = BTreeSet::new();
+    let (mut asked, mut answered) = (BTreeSet::new(), BTreeSet::new());
     for line in lines {
         match line.split('\t').collect::<Vec<_>>()[..] {
-            ["done", a, b] => {
+            ["asked", a, b] => {
+                asked.insert((a.to_owned(), b.to_owned()));
+            }
+            ["done" | "answered", a, b] => {
                 answered.insert((a.to_owned(), b.to_owned()));
             }
             _ => {
@@ -123,7 +126,7 @@ pub async fn run(node: &mut Node) -> Result<Summary, NodeError> {
         cache,
         journal,
         held,
-        pending: BTreeSet::new(),
+        pending: asked.difference(&answered).cloned().collect(),
         answered,
         members: vec![me],
         me,
@@ -146,23 +149,10 @@ pub async fn run(node: &mut Node) -> Result<Summary, NodeError> {
             biased;
             () = &mut stopped => break,
             Some(Ok((message, _))) = features.next() => tokio::task::block_in_place(|| matcher.add(&message)),
-            Some(Ok((message, _))) = candidates.next() => {
-                for candidate in &message.candidates {
-                    let pair = (format!("{}/{}", candidate.session, candidate.image_name), format!("{}/{}", message.session, message.image_name));
-                    if !matcher.answered.contains(&pair) {
-                        matcher.pending.insert(pair);
-                        stage.received();
-                    }
-                }
-                Ok(())
-            }
+            Some(Ok((message, _))) = candidates.next() => matcher.ask(&message, &stage),
             Some(Ok((message, _))) = answers.next() => {
                 let pair = (format!("{}/{}", message.session1, message.image_name1), format!("{}/{}", message.session2, message.image_name2));
-                if matcher.pending.remove(&pair) {
-                    matcher.summary.by_others += 1;
-                }
-                matcher.answered.insert(pair);
-                Ok(())
+                matcher.answered_by_another(pair)
             }
             _ = tick.tick() => {
                 let mut members = node.other_readers(MEMBERS_TOPIC);
@@ -212,6 +202,21 @@ fn pair_hash((a, b): &Pair) -> u64 {
 }
 
 impl Matcher {
+    /// Takes a keyframe's candidate pairs as work, journalled first: a restarted matcher still has
+    /// the pairs it was asked for (the places node answers a visit once).
+    fn ask(&mut self, message: &PlaceCandidates, stage: &Stage) -> Result<(), NodeError> {
+        let later = format!("{}/{}", message.session, message.image_name);
+        for candidate in &message.candidates {
+            let pair = (format!("{}/{}", candidate.session, candidate.image_name), later.clone());
+            if !self.answered.contains(&pair) && !self.pending.contains(&pair) {
+                self.journal.append(&format!("asked\t{}\t{}", pair.0, pair.1))?;
+                self.pending.insert(pair);
+                stage.received();
+            }
+        }
+        Ok(())
+    }
+
     fn add(&mut self, message: &Features) -> Result<(), NodeError> {
         let name = format!("{}/{}", message.session, message.image_name);
         let record =
@@ -224,6 +229,16 @@ impl Matcher {
                 self.held.insert((name, roll.degrees()));
             }
         }
+        Ok(())
+    }
+
+    /// Notes a pair answered on `matches` (journalled when it was this matcher's work to do).
+    fn answered_by_another(&mut self, pair: Pair) -> Result<(), NodeError> {
+        if self.pending.remove(&pair) {
+            self.journal.append(&format!("answered\t{}\t{}", pair.0, pair.1))?;
+            self.summary.by_others += 1;
+        }
+        self.answered.insert(pair);
         Ok(())
     }
 

@@ -55,6 +55,8 @@ pub struct DiscoveredTopic {
     pub type_name: String,
     /// Offered reliable.
     pub reliable: bool,
+    /// Offered transient-local (latched: a late subscriber gets the last values).
+    pub transient_local: bool,
 }
 
 /// One node in a DDS domain. Start it inside a tokio runtime: its background work (ros2-client's
@@ -256,7 +258,8 @@ impl Node {
                 let (package, rest) = data.type_name.split_once("::msg::dds_::")?;
                 let type_name = format!("{package}/msg/{}", rest.strip_suffix('_')?);
                 let reliable = matches!(data.reliability, Some(rustdds::policy::Reliability::Reliable { .. }));
-                Some(DiscoveredTopic { name, type_name, reliable })
+                let transient_local = matches!(data.durability, Some(rustdds::policy::Durability::TransientLocal));
+                Some(DiscoveredTopic { name, type_name, reliable, transient_local })
             })
             .collect();
         topics.sort_by(|a, b| a.name.cmp(&b.name));

@@ -11,7 +11,7 @@ use revisit_msgs::rosgraph_msgs::Clock;
 use ros2_client::qos::{Durability, History, Reliability, WhenFull};
 use ros2_client::QosProfile;
 
-use crate::node::{dds, Node, RawPublisher, RawSubscription, RELIABLE};
+use crate::node::{dds, Node, RawPublisher, RawSubscription, LATCHED, RELIABLE};
 use crate::raw::RawCdr;
 use crate::NodeError;
 
@@ -180,7 +180,8 @@ pub struct RecordOptions {
 
 /// Records `options.topics` into a new bag folder `out` until the node is stopped or a limit is
 /// reached. A topic is subscribed once a publisher of it is discovered (its type then known);
-/// the subscription is reliable when the topic is offered reliable, else best effort.
+/// the subscription is reliable when the topic is offered reliable, else best effort, and
+/// transient-local when it is offered so (a latched topic's last value is recorded too).
 pub async fn record(
     node: &mut Node,
     out: &Path,
@@ -214,9 +215,14 @@ pub async fn record(
                         found.name, found.type_name
                     ))
                 })?;
-                let (qos, bag_qos) = match found.reliable {
-                    true => (RELIABLE.history(History::KeepLast { depth: 100 }), revisit_bag::QosProfile::RELIABLE),
-                    false => (
+                let (qos, bag_qos) = match (found.reliable, found.transient_local) {
+                    (true, true) => {
+                        (LATCHED.history(History::KeepLast { depth: 100 }), revisit_bag::QosProfile::LATCHED)
+                    }
+                    (true, false) => {
+                        (RELIABLE.history(History::KeepLast { depth: 100 }), revisit_bag::QosProfile::RELIABLE)
+                    }
+                    (false, _) => (
                         QosProfile::subscription_default().history(History::KeepLast { depth: 100 }),
                         revisit_bag::QosProfile::SENSOR_DATA,
                     ),

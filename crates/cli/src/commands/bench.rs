@@ -1,6 +1,7 @@
 //! `revisit bench ...`: figures side by side with the reference implementations.
 
 mod bag;
+mod live;
 mod matching;
 mod sift;
 
@@ -17,6 +18,10 @@ pub enum Bench {
     /// cross-visit error; place-recognition recall; roll-search agreement and
     /// cost; learned extraction speed.
     Matching(matching::Args),
+    /// The node graph under a live camera (30 Hz 1280x720 by default, JPEG then raw): frames
+    /// received, dropped and lost, keyframes kept, each node's sustained rate and peak memory,
+    /// and the delay from a keyframe to its registered pose.
+    Live(live::Args),
 }
 
 pub fn run(bench: Bench) -> anyhow::Result<()> {
@@ -24,5 +29,6 @@ pub fn run(bench: Bench) -> anyhow::Result<()> {
         Bench::Bag(args) => bag::run(args),
         Bench::Sift(args) => sift::run(args),
         Bench::Matching(args) => matching::run(args),
+        Bench::Live(args) => live::run(args),
     }
 }
