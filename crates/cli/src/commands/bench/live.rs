@@ -243,10 +243,10 @@ async fn drive(
         (std::pin::pin!(diagnostics.async_stream()), std::pin::pin!(keyframes.async_stream()));
     let mut status = std::pin::pin!(status.async_stream());
 
-    // The nodes are up when every one of them says so on /diagnostics and ingest reads the camera.
+    // The graph is up when ingest reads the camera and features and mapper read its keyframes.
     let topic = if encoding == "raw" { "/camera/image_raw" } else { "/camera/image_raw/compressed" };
     let started = Instant::now();
-    while camera.readers_of(topic) == 0 || camera.readers_of("/keyframes") < 3 {
+    while camera.readers_of(topic) == 0 || camera.readers_of("/keyframes") < 2 {
         ensure!(started.elapsed() < Duration::from_secs(120), "the graph did not come up in 120 s");
         for node in nodes.iter_mut() {
             if let Some(status) = node.child.try_wait()? {
@@ -290,6 +290,8 @@ async fn drive(
     let bar = crate::progress::bar(total, &format!("camera ({encoding})"));
     let publishing = Instant::now();
     let mut mapped_at: Option<Instant> = None;
+    // The visit ends a second after the last frame.
+    let mut end_at: Option<tokio::time::Instant> = None;
     let mut ended = false;
     loop {
         tokio::select! {
@@ -319,9 +321,12 @@ async fn drive(
                 infos.async_publish(info).await.map_err(dds)?;
                 figures.published += 1;
                 bar.set_position(figures.published);
+                if figures.published == total {
+                    figures.publish_s = publishing.elapsed().as_secs_f64();
+                    end_at = Some(tokio::time::Instant::now() + Duration::from_secs(1));
+                }
             }
-            () = tokio::time::sleep(Duration::from_secs(1)), if figures.published >= total && !ended => {
-                figures.publish_s = publishing.elapsed().as_secs_f64();
+            () = tokio::time::sleep_until(end_at.unwrap_or_else(tokio::time::Instant::now)), if end_at.is_some() && !ended => {
                 bar.finish_and_clear();
                 control.async_publish(say(SessionControl::END)).await.map_err(dds)?;
                 ended = true;
