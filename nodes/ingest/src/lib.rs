@@ -116,7 +116,7 @@ pub async fn run(node: &mut Node) -> Result<Summary, NodeError> {
             Some(Ok((info, _))) = infos.next() => {
                 camera_info = info;
                 let frames = std::mem::take(&mut waiting);
-                offer(node, &mut out, &mut ingest, frames, &camera_info, prior).await?;
+                offer(node, &mut out, &mut ingest, (frames, true), &camera_info, prior).await?;
                 continue;
             }
             Some(Ok((message, _))) = odometry.next() => {
@@ -127,7 +127,7 @@ pub async fn run(node: &mut Node) -> Result<Summary, NodeError> {
             }
             Some(Ok((message, _))) = control.next() => {
                 let frames = std::mem::take(&mut waiting);
-                offer(node, &mut out, &mut ingest, frames, &camera_info, prior).await?;
+                offer(node, &mut out, &mut ingest, (frames, true), &camera_info, prior).await?;
                 let events = match message.command {
                     SessionControl::START => ingest.stream.start(&message.session),
                     SessionControl::END => ingest.stream.end(),
@@ -139,7 +139,7 @@ pub async fn run(node: &mut Node) -> Result<Summary, NodeError> {
                 publish(node, &mut out, events).await?;
                 if message.command == SessionControl::START {
                     let early = ingest.early_frames(&mut out, message.header.stamp.as_nanos());
-                    take(node, &mut out, &mut ingest, early, &camera_info, prior).await?;
+                    offer(node, &mut out, &mut ingest, (early, false), &camera_info, prior).await?;
                 }
                 continue;
             }
@@ -149,10 +149,10 @@ pub async fn run(node: &mut Node) -> Result<Summary, NodeError> {
             continue;
         }
         let frames = std::mem::take(&mut waiting);
-        offer(node, &mut out, &mut ingest, frames, &camera_info, prior).await?;
+        offer(node, &mut out, &mut ingest, (frames, true), &camera_info, prior).await?;
     }
     let frames = std::mem::take(&mut waiting);
-    offer(node, &mut out, &mut ingest, frames, &camera_info, prior).await?;
+    offer(node, &mut out, &mut ingest, (frames, true), &camera_info, prior).await?;
     let events = ingest.stream.end();
     publish(node, &mut out, events).await?;
     ingest.drop_frames(&mut out, ingest.early.len());
@@ -192,31 +192,20 @@ impl Ingest {
     }
 }
 
-/// Offers frames to the visit stream, publishing the keyframes it keeps.
+/// Offers frames to the visit stream, publishing the keyframes it keeps; `arrived`: the frames
+/// have just arrived (counted as received), not kept from before their visit's START.
 async fn offer(
     node: &Node,
     out: &mut Outputs,
     ingest: &mut Ingest,
-    frames: Vec<Result<Frame, String>>,
+    (frames, arrived): (Vec<Result<Frame, String>>, bool),
     camera_info: &CameraInfo,
     prior: Option<PoseWithCovariance>,
 ) -> Result<(), NodeError> {
-    for _ in &frames {
-        ingest.stage.received();
-        out.summary.frames += 1;
+    if arrived {
+        ingest.stage.received_many(frames.len() as u64);
+        out.summary.frames += frames.len() as u64;
     }
-    take(node, out, ingest, frames, camera_info, prior).await
-}
-
-/// Takes frames (counted as received) into the visit stream, publishing the keyframes it keeps.
-async fn take(
-    node: &Node,
-    out: &mut Outputs,
-    ingest: &mut Ingest,
-    frames: Vec<Result<Frame, String>>,
-    camera_info: &CameraInfo,
-    prior: Option<PoseWithCovariance>,
-) -> Result<(), NodeError> {
     for frame in frames {
         let started = Instant::now();
         let frame = match frame {

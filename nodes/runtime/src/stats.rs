@@ -30,6 +30,11 @@ impl Stage {
         self.0.received.fetch_add(1, Ordering::Relaxed);
     }
 
+    /// Items arrived.
+    pub fn received_many(&self, count: u64) {
+        self.0.received.fetch_add(count, Ordering::Relaxed);
+    }
+
     /// Items were dropped (queue full, undecodable, not kept).
     pub fn dropped(&self, count: u64) {
         self.0.dropped.fetch_add(count, Ordering::Relaxed);
