@@ -61,6 +61,11 @@ fn work_of(store: &Store, method: &str) -> Work {
     Work { features, candidates, pairs }
 }
 
+/// An answer's pair, `session/file session/file`.
+fn pair_of(answer: &CrossVisitMatches) -> String {
+    format!("{}/{} {}/{}", answer.session1, answer.image_name1, answer.session2, answer.image_name2)
+}
+
 /// Starts `count` matcher nodes in `domain`; returns them and the seconds until every pair was
 /// answered, with how many times each pair was answered.
 fn match_with(count: usize, domain: u16, dir: &Path, options: &Path, work: &Work) -> (f64, BTreeMap<String, usize>) {
@@ -101,14 +106,12 @@ fn match_with(count: usize, domain: u16, dir: &Path, options: &Path, work: &Work
         while answered.len() < work.pairs {
             let next = tokio::time::timeout(Duration::from_secs(600), answers.next()).await;
             let (answer, _) = next.expect("no answer in 10 min").unwrap().unwrap();
-            let pair = format!("{}/{} {}/{}", answer.session1, answer.image_name1, answer.session2, answer.image_name2);
-            *answered.entry(pair).or_default() += 1;
+            *answered.entry(pair_of(&answer)).or_default() += 1;
         }
         let seconds = started.elapsed().as_secs_f64();
         // Anything still on its way (a pair matched twice).
         while let Ok(Some(Ok((answer, _)))) = tokio::time::timeout(Duration::from_secs(3), answers.next()).await {
-            let pair = format!("{}/{} {}/{}", answer.session1, answer.image_name1, answer.session2, answer.image_name2);
-            *answered.entry(pair).or_default() += 1;
+            *answered.entry(pair_of(&answer)).or_default() += 1;
         }
         node.shutdown().await;
         (seconds, answered)
