@@ -3,9 +3,11 @@
 //! - a synthetic 3-visit survey (mild change) played from its bags, with the bags' clock, into the
 //!   graph with two matchers, every node killed (SIGKILL) once mid-replay and respawned, gives the
 //!   map that `reconstruct` gives adding the same visits one at a time, stamped with the bags'
-//!   time;
+//!   time, placed on the last visit's odometry by `map -> odom` on `/tf`;
 //! - an independent DDS peer (PyPI cyclonedds) publishes a visit as raw Image and CameraInfo and
-//!   receives the map, which `bag record` records as mcap-ros2-support reads it.
+//!   receives the map (once asked for on the mapper's `~/map` service before the visit ends,
+//!   again when it ends), which `bag record` records as mcap-ros2-support reads it; the mapper's
+//!   `~/save` service writes `reconstruct`'s outputs.
 
 #![allow(clippy::unwrap_used, clippy::expect_used)]
 
@@ -19,6 +21,7 @@ use std::sync::OnceLock;
 use std::time::{Duration, Instant};
 
 use common::{cross_error_px, fully_registered, read_json, reconstruct, run_ok};
+use revisit_msgs::nav_msgs::Odometry;
 use revisit_msgs::revisit_msgs::SessionControl;
 use revisit_msgs::sensor_msgs::{CompressedImage, Image};
 use serde_json::{json, Value};
@@ -277,6 +280,9 @@ fn a_survey_played_into_the_graph_maps_as_reconstruct_does_with_every_node_kille
         "/map/status": {"type": "revisit_msgs/msg/MapStatus", "count": 1, "transient_local": true},
         "/map/cloud": {"type": "sensor_msgs/msg/PointCloud2", "count": 1, "transient_local": true},
         "/map/path/s1": {"type": "nav_msgs/msg/Path", "count": 1, "transient_local": true},
+        "/map/path/s3": {"type": "nav_msgs/msg/Path", "count": 1, "transient_local": true},
+        // Sent once a second (not latched, as TF is).
+        "/tf": {"type": "tf2_msgs/msg/TFMessage", "count": 1},
         // What the ingest node said since its restart: s2's and s3's START and END.
         "/visits": {"type": "revisit_msgs/msg/SessionControl", "count": 4, "transient_local": true},
     });
@@ -309,6 +315,29 @@ fn a_survey_played_into_the_graph_maps_as_reconstruct_does_with_every_node_kille
     let path = last(&heard, "/map/path/s1");
     assert_eq!(path["header"]["frame_id"], "map");
     assert_eq!(path["poses"].as_array().unwrap().len() as u64, got["sessions"]["s1"]["registered"].as_u64().unwrap());
+    // The map placed on the newest visit's odometry: REP 105's `map -> odom` takes each of s3's
+    // keyframes' odometry positions to its camera on the (metric) map, to within the odometry's
+    // drift.
+    let tf = &last(&heard, "/tf")["transforms"][0];
+    assert_eq!((tf["header"]["frame_id"].as_str(), tf["child_frame_id"].as_str()), (Some("map"), Some("odom")));
+    let (t, q) = (&tf["transform"]["translation"], &tf["transform"]["rotation"]);
+    let [t, q] = [vector(t, "xyz"), vector(q, "xyzw")];
+    let s3 = last(&heard, "/map/path/s3");
+    let in_map: Vec<Vec<f64>> =
+        s3["poses"].as_array().unwrap().iter().map(|p| vector(&p["pose"]["position"], "xyz")).collect();
+    let in_odom = odometry_positions(&bag("s3"));
+    assert_eq!(in_map.len(), in_odom.len());
+    let mut misfit_m: Vec<f64> = in_map
+        .iter()
+        .zip(&in_odom)
+        .map(|(m, o)| {
+            distance(&m.iter().zip(rotate(&q, o)).zip(&t).map(|((m, r), t)| m - (r + t)).collect::<Vec<_>>(), &[0.0; 3])
+        })
+        .collect();
+    misfit_m.sort_by(f64::total_cmp);
+    let span_m = in_odom.iter().flat_map(|a| in_odom.iter().map(|b| distance(a, b))).fold(0.0, f64::max);
+    println!("map -> odom: median misfit {:.3} m over a {span_m:.2} m track", misfit_m[misfit_m.len() / 2]);
+    assert!(misfit_m[misfit_m.len() / 2] < 0.05 * span_m, "misfits {misfit_m:?} m, track {span_m} m, {tf:#}");
     let bag_time = |visit| revisit_bag::Bag::open(&bag(visit)).unwrap().info().unwrap().time_range_ns().unwrap();
     let (first, _) = bag_time("s1");
     let (_, end) = bag_time("s3");
@@ -322,6 +351,38 @@ fn a_survey_played_into_the_graph_maps_as_reconstruct_does_with_every_node_kille
             "{topic} stamped {stamp} ns, not in the bags' time {first}..{end}"
         );
     }
+}
+
+/// The camera positions by odometry in a visit's bag, in time order.
+fn odometry_positions(bag: &Path) -> Vec<[f64; 3]> {
+    let mut positions = Vec::new();
+    for message in revisit_bag::Bag::open(bag).unwrap().messages() {
+        let message = message.unwrap();
+        if message.topic.name == "/odom" {
+            let p = revisit_msgs::decode::<Odometry>(&message.data).unwrap().pose.pose.position;
+            positions.push([p.x, p.y, p.z]);
+        }
+    }
+    positions
+}
+
+/// A message's fields named by `axes` (`"xyz"`, `"xyzw"`), as numbers.
+fn vector(value: &Value, axes: &str) -> Vec<f64> {
+    axes.chars().map(|axis| value[axis.to_string()].as_f64().unwrap()).collect()
+}
+
+/// `v` turned by the unit quaternion `q` (x, y, z, w).
+fn rotate(q: &[f64], v: &[f64; 3]) -> [f64; 3] {
+    let (u, w) = ([q[0], q[1], q[2]], q[3]);
+    let cross =
+        |a: [f64; 3], b: [f64; 3]| [a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]];
+    let uv = cross(u, *v);
+    let uuv = cross(u, uv);
+    [0, 1, 2].map(|i| v[i] + 2.0 * (w * uv[i] + uuv[i]))
+}
+
+fn distance(a: &[f64], b: &[f64]) -> f64 {
+    a.iter().zip(b).map(|(a, b)| (a - b).powi(2)).sum::<f64>().sqrt()
 }
 
 /// A visit's frames as a camera driver publishes them: raw RGB Image and CameraInfo (from the
@@ -370,8 +431,8 @@ fn an_independent_peer_publishes_a_visit_and_receives_the_map() {
     let mut graph = Graph::launch(dir.path(), DOMAIN, &launch_file(&state, "cross: sift", &nodes, false));
     let map_topics = ["/map/status", "/map/cloud", "/map/path/peer"];
     let types = ["revisit_msgs/msg/MapStatus", "sensor_msgs/msg/PointCloud2", "nav_msgs/msg/Path"];
-    // MAPPING, then READY with the map.
-    let counts = [2, 1, 1];
+    // MAPPING, then READY with the map: once on the map service's call, once at the visit's END.
+    let counts = [4, 2, 2];
     let topics: serde_json::Map<String, Value> = (0..3)
         .map(|i| (map_topics[i].to_owned(), json!({"type": types[i], "count": counts[i], "transient_local": true})))
         .collect();
@@ -379,15 +440,54 @@ fn an_independent_peer_publishes_a_visit_and_receives_the_map() {
     let recorded = dir.path().join("recorded");
     let mut record = in_domain(common::revisit(), DOMAIN);
     let record_args =
-        ["bag", "record", "--out", recorded.to_str().unwrap(), "--max-messages", "4", "--duration", "1200"];
+        ["bag", "record", "--out", recorded.to_str().unwrap(), "--max-messages", "8", "--duration", "1200"];
     let recorder = record.args(record_args).args(map_topics).stderr(Stdio::piped()).spawn().unwrap();
 
-    // The peer publishes the first visit's frames as a camera driver would, two a second.
-    let spec = dir.path().join("talk.json");
-    let talk = json!({"domain": DOMAIN, "timeout": 120, "rate_hz": 2, "topics": camera_topics(&reef().join("bags/s1"), "peer")});
-    std::fs::write(&spec, talk.to_string()).unwrap();
-    revisit_testkit::interop("talk", Path::new("-"), &spec);
+    // The peer publishes the first visit's frames as a camera driver would, two a second, and
+    // leaves the visit open.
+    let talk = |name: &str, topics: Value| {
+        let spec = dir.path().join(name);
+        std::fs::write(&spec, json!({"domain": DOMAIN, "timeout": 120, "rate_hz": 2, "topics": topics}).to_string())
+            .unwrap();
+        revisit_testkit::interop("talk", Path::new("-"), &spec);
+    };
+    let mut topics = camera_topics(&reef().join("bags/s1"), "peer");
+    let end = topics["/revisit/session"]["values"].as_array_mut().unwrap().pop().unwrap();
+    talk("frames.json", topics);
+    let frames = state.join("mapper/frames/peer");
+    let kept = || std::fs::read_dir(&frames).map_or(0, |d| d.count());
+    graph.wait_for("the peer's keyframes at the mapper", |_| kept() == 5);
+
+    // Mapped on request before the visit ends, then again when it ends.
+    let service = |args: &[&str]| in_domain(common::revisit(), DOMAIN).arg("service").args(args).output().unwrap();
+    let mapped = service(&["map"]);
+    let said = String::from_utf8_lossy(&mapped.stdout);
+    assert!(mapped.status.success(), "service map: {}", String::from_utf8_lossy(&mapped.stderr));
+    assert!(
+        said.contains("visit peer mapped as far as it has come") && said.contains("5 of its images registered"),
+        "{said}"
+    );
+    talk(
+        "end.json",
+        json!({"/revisit/session": {"type": "revisit_msgs/msg/SessionControl", "values": [end], "transient_local": true}}),
+    );
     graph.wait_for("the peer's visit mapped", |g| g.log().contains("visit peer mapped and published"));
+
+    // Saved on request as `reconstruct` writes its outputs; a folder that cannot be is named.
+    let saved = dir.path().join("saved");
+    let save = service(&["save", saved.to_str().unwrap()]);
+    assert!(save.status.success(), "service save: {}", String::from_utf8_lossy(&save.stderr));
+    let saved_report = read_json(&saved.join("report.json"));
+    assert_eq!(fully_registered(&saved_report), ["peer"], "{saved_report:#}");
+    let model = saved_report["chosen_model"].as_str().unwrap();
+    assert!(Path::new(model).starts_with(&saved) && Path::new(model).join("images.bin").exists(), "{model}");
+    let poses = std::fs::read_to_string(saved.join("poses.csv")).unwrap();
+    assert_eq!(poses.lines().count(), 6, "{poses}");
+    assert!(saved.join("points.ply").exists());
+    let blocked = saved.join("poses.csv").join("inside");
+    let refused = service(&["save", blocked.to_str().unwrap()]);
+    let error = String::from_utf8_lossy(&refused.stderr);
+    assert!(!refused.status.success() && error.trim().lines().count() == 1 && error.contains("poses.csv"), "{error}");
     let heard_ok = listener.wait_with_output().unwrap().status.success();
     let recorder = recorder.wait_with_output().unwrap();
     assert!(recorder.status.success(), "bag record: {}", String::from_utf8_lossy(&recorder.stderr));

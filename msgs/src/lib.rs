@@ -19,6 +19,7 @@ pub mod nav_msgs;
 pub mod revisit_msgs;
 pub mod rosgraph_msgs;
 pub mod sensor_msgs;
+pub mod services;
 pub mod std_msgs;
 pub mod tf2_msgs;
 

@@ -304,6 +304,21 @@ def idl_types():
         mean_reprojection_error_px: float64
 
     @dataclass
+    class Transform(IdlStruct, typename="geometry_msgs::msg::dds_::Transform_"):
+        translation: Vector3
+        rotation: Quaternion
+
+    @dataclass
+    class TransformStamped(IdlStruct, typename="geometry_msgs::msg::dds_::TransformStamped_"):
+        header: Header
+        child_frame_id: str
+        transform: Transform
+
+    @dataclass
+    class TFMessage(IdlStruct, typename="tf2_msgs::msg::dds_::TFMessage_"):
+        transforms: sequence[TransformStamped]
+
+    @dataclass
     class SessionControl(IdlStruct, typename="revisit_msgs::msg::dds_::SessionControl_"):
         header: Header
         command: uint8
@@ -315,7 +330,7 @@ def idl_types():
             "sensor_msgs/msg/CameraInfo": CameraInfo, "sensor_msgs/msg/NavSatFix": NavSatFix,
             "nav_msgs/msg/Odometry": Odometry, "nav_msgs/msg/Path": Path,
             "sensor_msgs/msg/PointCloud2": PointCloud2, "revisit_msgs/msg/MapStatus": MapStatus,
-            "revisit_msgs/msg/SessionControl": SessionControl}
+            "revisit_msgs/msg/SessionControl": SessionControl, "tf2_msgs/msg/TFMessage": TFMessage}
 
 
 def idl_value(cls, value):

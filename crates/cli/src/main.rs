@@ -39,6 +39,9 @@ enum Command {
     Launch(commands::launch::Args),
     /// Run one ROS 2 node (ingest) in this process until Ctrl-C or SIGTERM.
     Node(commands::launch::NodeArgs),
+    /// Call the mapper node's services: save the map to a folder, or map now.
+    #[command(subcommand)]
+    Service(commands::service::Command),
     /// Benchmarks that print Revisit's figures beside a reference implementation.
     #[command(subcommand)]
     Bench(commands::bench::Bench),
@@ -58,6 +61,7 @@ fn main() -> std::process::ExitCode {
         Command::Bag(command) => commands::bag::run(command),
         Command::Launch(args) => commands::launch::run(args),
         Command::Node(args) => commands::launch::run_node(args),
+        Command::Service(command) => commands::service::run(command),
         Command::Bench(bench) => commands::bench::run(bench),
         Command::Doctor(args) => commands::doctor::run(args),
     };

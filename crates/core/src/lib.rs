@@ -6,12 +6,14 @@
 //! z forward); pixel (0, 0) is the *corner* of the top-left pixel, so the centre
 //! of that pixel is (0.5, 0.5), as in COLMAP.
 
+mod align;
 mod camera;
 mod features;
 mod name;
 mod pose;
 mod reconstruction;
 
+pub use align::{umeyama, AlignError, Similarity};
 pub use camera::{Camera, CameraModel, CameraModelError};
 pub use features::{
     pair_from_id, pair_id, CrossKey, Features, Keypoint, LearnedFeatures, Roll, TwoViewConfig, TwoViewGeometry,

@@ -7,21 +7,20 @@
 //!   projects it into `img1` with the estimated pose and measures the distance
 //!   to the true location: per session pair and overall.
 //! - [`parse_truth_poses_csv`] and [`score_truth`] measure registration rates
-//!   and camera errors after a similarity alignment ([`umeyama`]).
+//!   and camera errors after a similarity alignment ([`umeyama`], from `revisit-core`).
 //! - [`histogram`] draws the error histogram of a session pair.
 //!
 //! Invariant: pure functions over models and texts; no file I/O (the CLI reads
 //! models and writes reports and images).
 
-mod align;
 mod clicks;
 mod plot;
 mod score;
 mod truth;
 
-pub use align::{umeyama, AlignError, Similarity};
 pub use clicks::{parse_points_csv, write_points_csv, ClickPair, MalformedRow, PointsCsv};
 pub use plot::{histogram, HistogramOptions};
+pub use revisit_core::{umeyama, AlignError, Similarity};
 pub use score::{score, ClickResult, ScoreOptions, Scores, SkipReason, Summary};
 pub use truth::{
     parse_truth_poses_csv, score_truth, Alignment, PoseErrors, SessionTruth, TruthOptions, TruthPose, TruthScores,

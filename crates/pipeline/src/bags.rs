@@ -22,7 +22,7 @@ use serde::{Deserialize, Serialize};
 use crate::{
     images,
     ingest::{SessionImages, SessionSpec},
-    keyframes::{KeyframeOptions, VisitEvent, VisitStream},
+    keyframes::{KeyframeOptions, VisitEvent, VisitStream, PREVIEW_WIDTH_PX},
     Cancel, PipelineError, Progress,
 };
 
@@ -82,6 +82,17 @@ impl Frame {
         match &self.image {
             FrameImage::Raw(message) => images::from_raw(message, origin),
             FrameImage::File { bytes, .. } => images::decode(bytes, origin),
+        }
+    }
+
+    /// A small grey copy, at least `min_width_px` wide where the frame is, for looking at every
+    /// frame of a video (keyframe selection) without decoding each in full.
+    pub fn preview(&self, origin: &Path, min_width_px: u32) -> Result<DynamicImage, PipelineError> {
+        match &self.image {
+            FrameImage::Raw(message) => Ok(images::from_raw(message, origin)?),
+            FrameImage::File { bytes, .. } => {
+                Ok(DynamicImage::ImageLuma8(images::preview(bytes, origin, min_width_px)?))
+            }
         }
     }
 }
@@ -475,7 +486,7 @@ pub fn ingest(
         let origin = origin(&bag, &message);
         let decoded = frame_of(&message)
             .map_err(|why| PipelineError::Bag(format!("{}: {why}", origin.display())))
-            .and_then(|frame| frame.decode(&origin).map(|image| (frame, image)));
+            .and_then(|frame| frame.preview(&origin, PREVIEW_WIDTH_PX).map(|image| (frame, image)));
         let (frame, image) = match decoded {
             Ok(decoded) => decoded,
             Err(error) => {

@@ -29,12 +29,50 @@ pub fn decode(bytes: &[u8], origin: &Path) -> Result<DynamicImage, PipelineError
         return Err(bad(format!("{format:?} is not PNG or JPEG")));
     }
     if format == ImageFormat::Jpeg {
-        let end = bytes.iter().rposition(|&b| b != 0 && b != b'\n' && b != b'\r').unwrap_or(0);
-        if end < 1 || bytes.get(end - 1..=end) != Some(&[0xFF, 0xD9][..]) {
-            return Err(bad("truncated JPEG (no end-of-image marker)".to_owned()));
-        }
+        check_jpeg_end(bytes).map_err(bad)?;
     }
     image::load_from_memory_with_format(bytes, format).map_err(|e| bad(e.to_string()))
+}
+
+/// A small grey copy of PNG or JPEG bytes, at least `min_width_px` wide where the image is: what
+/// a selector looking at every frame of a video needs, at a fraction of a full decode's cost. A
+/// JPEG is decoded at the smallest of its DCT scales (1/8, 1/4, 1/2, 1) that keeps the width
+/// (the entropy data is still read whole, so a corrupt frame still fails); a PNG is decoded
+/// whole. Accepted and refused by [`decode`]'s policy.
+pub fn preview(bytes: &[u8], origin: &Path, min_width_px: u32) -> Result<GrayImage, PipelineError> {
+    let bad = |reason: String| PipelineError::BadImage { path: origin.to_path_buf(), reason };
+    if image::guess_format(bytes).ok() != Some(ImageFormat::Jpeg) {
+        return Ok(decode(bytes, origin)?.into_luma8());
+    }
+    check_jpeg_end(bytes).map_err(bad)?;
+    let mut decoder = jpeg_decoder::Decoder::new(bytes);
+    decoder.read_info().map_err(|e| bad(e.to_string()))?;
+    let info = decoder.info().ok_or_else(|| bad("no JPEG header".to_owned()))?;
+    let height_px = (u32::from(info.height) * min_width_px).div_ceil(u32::from(info.width).max(1));
+    let (width, height) = decoder
+        .scale(min_width_px.min(u32::from(u16::MAX)) as u16, height_px.min(u32::from(u16::MAX)) as u16)
+        .map_err(|e| bad(e.to_string()))?;
+    let pixels = decoder.decode().map_err(|e| bad(e.to_string()))?;
+    let (width, height) = (u32::from(width), u32::from(height));
+    let grey = match info.pixel_format {
+        jpeg_decoder::PixelFormat::L8 => pixels,
+        jpeg_decoder::PixelFormat::L16 => pixels.chunks_exact(2).map(|p| p[0]).collect(),
+        jpeg_decoder::PixelFormat::RGB24 => {
+            let rgb = RgbImage::from_raw(width, height, pixels).ok_or_else(|| bad("short JPEG data".to_owned()))?;
+            return Ok(DynamicImage::ImageRgb8(rgb).into_luma8());
+        }
+        jpeg_decoder::PixelFormat::CMYK32 => return Ok(decode(bytes, origin)?.into_luma8()),
+    };
+    GrayImage::from_raw(width, height, grey).ok_or_else(|| bad("short JPEG data".to_owned()))
+}
+
+/// A JPEG must end with its end-of-image marker (trailing padding allowed).
+fn check_jpeg_end(bytes: &[u8]) -> Result<(), String> {
+    let end = bytes.iter().rposition(|&b| b != 0 && b != b'\n' && b != b'\r').unwrap_or(0);
+    if end < 1 || bytes.get(end - 1..=end) != Some(&[0xFF, 0xD9][..]) {
+        return Err("truncated JPEG (no end-of-image marker)".to_owned());
+    }
+    Ok(())
 }
 
 /// Reads and decodes an image file by [`decode`]'s policy.
@@ -114,6 +152,21 @@ mod tests {
         std::fs::write(dir.path().join("cut.jpg"), cut).unwrap();
         assert!(read(&dir.path().join("cut.jpg")).is_err());
         assert!(decode(b"GIF89a....", Path::new("x.gif")).is_err());
+    }
+
+    #[test]
+    fn a_jpeg_preview_is_a_reduced_decode_of_the_same_picture() {
+        // Left half dark, right half bright, 640x480.
+        let picture = image::RgbImage::from_fn(640, 480, |x, _| image::Rgb([if x < 320 { 30 } else { 220 }; 3]));
+        let mut bytes = Vec::new();
+        DynamicImage::ImageRgb8(picture).write_to(&mut std::io::Cursor::new(&mut bytes), ImageFormat::Jpeg).unwrap();
+        let small = preview(&bytes, Path::new("a.jpg"), 128).unwrap();
+        // The smallest DCT scale at least 128 wide: 1/4.
+        assert_eq!((small.width(), small.height()), (160, 120));
+        let (left, right) = (small.get_pixel(20, 60).0[0], small.get_pixel(140, 60).0[0]);
+        assert!(left.abs_diff(30) < 8 && right.abs_diff(220) < 8, "{left} {right}");
+        let err = preview(&bytes[..bytes.len() / 2], Path::new("cut.jpg"), 128).unwrap_err().to_string();
+        assert!(err.contains("cut.jpg") && err.contains("truncated JPEG"), "{err}");
     }
 
     #[test]

@@ -4,7 +4,7 @@
 //! below a threshold. Sans-IO: frames are offered one at a time; the ingest node and
 //! `reconstruct --bag` drive the same selector.
 
-use image::{imageops::FilterType, DynamicImage, GrayImage};
+use image::{DynamicImage, GrayImage};
 use serde::{Deserialize, Serialize};
 
 /// The default: keep a frame when under 70% of the last keyframe is still in view.
@@ -12,6 +12,10 @@ pub const DEFAULT_MIN_OVERLAP: f64 = 0.7;
 
 /// Width of the thumbnails overlap is tracked on, pixels.
 const THUMB_WIDTH_PX: u32 = 64;
+
+/// The width of image the selector needs at least, pixels: frames are offered as previews this
+/// wide or wider ([`crate::bags::Frame::preview`]), not decoded in full.
+pub const PREVIEW_WIDTH_PX: u32 = 2 * THUMB_WIDTH_PX;
 
 /// When a frame becomes a keyframe; a criterion left `None` is not used. With none set, every
 /// frame is kept.
@@ -89,7 +93,7 @@ impl<T> KeyframeSelector<T> {
     }
 
     /// Offers the next frame: its payload, its time, the odometry position at that time if
-    /// known, and its image. Returns the frames that became keyframes (none, this one, the one
+    /// known, and its image (whole, or a preview at least [`PREVIEW_WIDTH_PX`] wide). Returns the frames that became keyframes (none, this one, the one
     /// before it, or both), in stream order.
     pub fn offer(
         &mut self,
@@ -226,7 +230,7 @@ impl<T> VisitStream<T> {
         self.current.as_ref().map(|(name, _)| name.as_str())
     }
 
-    /// Offers the next frame, taken at `time_ns`.
+    /// Offers the next frame, taken at `time_ns`, with its image (whole or a preview).
     pub fn frame(&mut self, frame: T, time_ns: u64, image: &DynamicImage) -> Vec<VisitEvent<T>> {
         let gap = self
             .split_gap_s
@@ -266,7 +270,9 @@ impl Thumb {
     fn of(image: &DynamicImage) -> Thumb {
         let height =
             (THUMB_WIDTH_PX as f64 * image.height() as f64 / image.width().max(1) as f64).round().max(8.0) as u32;
-        let grey: GrayImage = image.resize_exact(THUMB_WIDTH_PX, height, FilterType::Triangle).into_luma8();
+        // An area average (what a coarser sensor would see): fast at any size, and the same
+        // thumbnail from a full frame as from its preview, up to rounding.
+        let grey: GrayImage = image.thumbnail_exact(THUMB_WIDTH_PX, height).into_luma8();
         let (w, h) = (THUMB_WIDTH_PX as usize, height as usize);
         let at = |x: usize, y: usize| f32::from(grey.as_raw()[y * w + x]);
         let mut pixels = Vec::with_capacity(w * h);

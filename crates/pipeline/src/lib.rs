@@ -29,6 +29,7 @@ pub mod learned;
 pub mod locate;
 pub mod mapping;
 pub mod messages;
+pub mod odometry;
 pub mod options;
 pub mod report;
 pub mod stages;

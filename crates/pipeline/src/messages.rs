@@ -4,9 +4,11 @@
 use std::collections::BTreeMap;
 
 use revisit_core::TwoViewGeometry;
-use revisit_core::{Features, Keypoint, LearnedFeatures, Reconstruction, Rigid3, Roll};
+use revisit_core::{umeyama, Features, Keypoint, LearnedFeatures, Reconstruction, Rigid3, Roll, Similarity};
 use revisit_matching::CrossMatch;
-use revisit_msgs::geometry_msgs::{Point, Pose, PoseArray, PoseStamped, Quaternion};
+use revisit_msgs::geometry_msgs::{
+    Point, Pose, PoseArray, PoseStamped, Quaternion, Transform, TransformStamped, Vector3 as VectorMessage,
+};
 use revisit_msgs::nav_msgs::Path;
 use revisit_msgs::revisit_msgs::{CrossVisitMatches, Features as FeaturesMessage, MapStatus, SessionStatus};
 use revisit_msgs::sensor_msgs::{CameraInfo, PointCloud2, PointField};
@@ -201,6 +203,37 @@ pub fn camera_pose(cam_from_world: &Rigid3) -> Pose {
     let [w, x, y, z] = world_from_cam.wxyz();
     let t = world_from_cam.translation;
     Pose { position: Point { x: t.x, y: t.y, z: t.z }, orientation: Quaternion { x, y, z, w } }
+}
+
+/// Where the map sits on a visit's odometry: the similarity `odom_from_map` that takes the camera
+/// centres of the registered images named in `centres_in_odom` (`session/file` -> the camera's
+/// position by odometry) onto those positions, least squares (Umeyama). `None` with fewer than
+/// 3 such images or all on one line.
+pub fn odom_from_map(model: &Reconstruction, centres_in_odom: &BTreeMap<String, [f64; 3]>) -> Option<Similarity> {
+    let (mut in_map, mut in_odom) = (Vec::new(), Vec::new());
+    for image in model.images.values() {
+        if let Some(&[x, y, z]) = centres_in_odom.get(&image.name) {
+            in_map.push(nalgebra::Point3::from(image.cam_from_world.inverse().translation));
+            in_odom.push(nalgebra::Point3::new(x, y, z));
+        }
+    }
+    umeyama(&in_map, &in_odom).ok()
+}
+
+/// REP 105's `map -> odom` transform (the odometry frame's pose in the map frame) for a map
+/// scaled to metres by `odom_from_map`'s scale: `header` names the map frame.
+pub fn map_to_odom(header: &Header, odom_frame_id: &str, odom_from_map: &Similarity) -> TransformStamped {
+    let map_from_odom = odom_from_map.rigid().inverse();
+    let [w, x, y, z] = map_from_odom.wxyz();
+    let t = map_from_odom.translation;
+    TransformStamped {
+        header: header.clone(),
+        child_frame_id: odom_frame_id.to_owned(),
+        transform: Transform {
+            translation: VectorMessage { x: t.x, y: t.y, z: t.z },
+            rotation: Quaternion { x, y, z, w },
+        },
+    }
 }
 
 /// The map's outputs as messages, stamped with `header` (its frame is the map's).

@@ -430,6 +430,60 @@ impl Workspace {
         mapping::map(&self.python, &database, &image_root, &self.dir, &inputs, &constant, &self.options.mapper, cancel)
     }
 
+    /// Writes what this folder hands to users (the COLMAP model(s) `model/`, `points.ply`,
+    /// `poses.csv`, `report.json`, as `revisit reconstruct` leaves them) to the folder `to`, the
+    /// report's model path pointing at the copy. Everything is written beside, in `to/.saving`,
+    /// then moved into place: a failed save leaves what `to` held. Returns the names written.
+    pub fn save_outputs(&self, to: &Path) -> Result<Vec<String>, PipelineError> {
+        let io = |path: &Path| {
+            let path = path.to_path_buf();
+            move |source| PipelineError::Io { path, source }
+        };
+        let mut report = Report::read(&self.dir.join("report.json"))?;
+        std::fs::create_dir_all(to).map_err(io(to))?;
+        let to = std::fs::canonicalize(to).map_err(io(to))?;
+        let work = std::fs::canonicalize(&self.dir).map_err(io(&self.dir))?;
+        if to == work {
+            return Err(PipelineError::Io {
+                path: to,
+                source: std::io::Error::other("is the work folder itself, which holds the map already"),
+            });
+        }
+        let staging = to.join(".saving");
+        if staging.exists() {
+            std::fs::remove_dir_all(&staging).map_err(io(&staging))?;
+        }
+        std::fs::create_dir_all(&staging).map_err(io(&staging))?;
+        let model = mapping::model_root(&self.dir);
+        let mut written = Vec::new();
+        if model.is_dir() {
+            copy_dir(&model, &staging.join("model"))?;
+            written.push("model".to_owned());
+        }
+        for name in ["points.ply", "poses.csv"] {
+            let from = self.dir.join(name);
+            if from.exists() {
+                std::fs::copy(&from, staging.join(name)).map_err(io(&from))?;
+                written.push(name.to_owned());
+            }
+        }
+        report.chosen_model = report.chosen_model.map(|m| match m.strip_prefix(&work).or(m.strip_prefix(&self.dir)) {
+            Ok(inside) => to.join(inside),
+            Err(_) => m,
+        });
+        report.write(&staging.join("report.json"))?;
+        written.push("report.json".to_owned());
+        for name in &written {
+            let target = to.join(name);
+            if target.is_dir() {
+                std::fs::remove_dir_all(&target).map_err(io(&target))?;
+            }
+            std::fs::rename(staging.join(name), &target).map_err(io(&target))?;
+        }
+        std::fs::remove_dir(&staging).map_err(io(&staging))?;
+        Ok(written)
+    }
+
     /// Stage: `poses.csv` and `points.ply` of the chosen model.
     pub fn export(&self, outcome: &MappingOutcome, chosen: Option<usize>) -> Result<(), PipelineError> {
         let Some(model) = chosen.and_then(|k| outcome.models.get(k)) else {
@@ -483,4 +537,23 @@ fn link_images(work: &Path, session: &str, dir: &Path) -> Result<(), PipelineErr
         std::fs::remove_file(&link).map_err(io(&link))?;
     }
     std::os::unix::fs::symlink(dir, &link).map_err(io(&link))
+}
+
+/// Copies a folder tree (files and folders; a COLMAP model is no deeper than that).
+fn copy_dir(from: &Path, to: &Path) -> Result<(), PipelineError> {
+    let io = |path: &Path| {
+        let path = path.to_path_buf();
+        move |source| PipelineError::Io { path, source }
+    };
+    std::fs::create_dir_all(to).map_err(io(to))?;
+    for entry in std::fs::read_dir(from).map_err(io(from))? {
+        let path = entry.map_err(io(from))?.path();
+        let Some(name) = path.file_name() else { continue };
+        if path.is_dir() {
+            copy_dir(&path, &to.join(name))?;
+        } else {
+            std::fs::copy(&path, to.join(name)).map_err(io(&path))?;
+        }
+    }
+    Ok(())
 }

@@ -15,13 +15,15 @@ use std::path::Path;
 use std::time::Instant;
 
 use futures::StreamExt;
-use revisit_msgs::geometry_msgs::PoseWithCovariance;
 use revisit_msgs::nav_msgs::Odometry;
 use revisit_msgs::revisit_msgs::{Keyframe, SessionControl};
 use revisit_msgs::sensor_msgs::{CameraInfo, CompressedImage, Image};
-use revisit_node::{History, LogLevel, Node, NodeError, Publisher, Stage, LATCHED, SENSOR_DATA, WORK_QUEUE};
+use revisit_node::{
+    History, LogLevel, MessageInfo, Node, NodeError, Publisher, Stage, LATCHED, SENSOR_DATA, WORK_QUEUE,
+};
 use revisit_pipeline::bags::{frame_file, Frame};
-use revisit_pipeline::keyframes::{KeyframeOptions, VisitEvent, VisitStream, DEFAULT_MIN_OVERLAP};
+use revisit_pipeline::keyframes::{KeyframeOptions, VisitEvent, VisitStream, DEFAULT_MIN_OVERLAP, PREVIEW_WIDTH_PX};
+use revisit_pipeline::odometry::OdometryTrack;
 
 /// The node's name unless remapped.
 pub const NAME: &str = "ingest";
@@ -32,20 +34,26 @@ pub struct Summary {
     pub frames: u64,
     pub keyframes: u64,
     pub dropped: u64,
+    /// Frames the camera sent that never arrived (lost in transport or in a full queue).
+    pub lost: u64,
     pub visits: Vec<String>,
 }
 
 impl std::fmt::Display for Summary {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        let Summary { frames, keyframes, dropped, visits } = self;
-        write!(f, "{frames} frames, {keyframes} keyframes, {dropped} dropped, visits {visits:?}")
+        let Summary { frames, keyframes, dropped, lost, visits } = self;
+        write!(
+            f,
+            "{frames} frames, {keyframes} keyframes, {dropped} dropped, {lost} lost before arriving, visits {visits:?}"
+        )
     }
 }
 
 struct Pending {
     frame: Frame,
+    /// When it was taken, ns (its stamp, or when it arrived).
+    time_ns: u64,
     camera_info: CameraInfo,
-    prior: Option<PoseWithCovariance>,
 }
 
 struct Outputs {
@@ -54,6 +62,9 @@ struct Outputs {
     camera: String,
     /// Keyframes published in the visit in progress (said with its END).
     visit_keyframes: u32,
+    odometry: OdometryTrack,
+    /// Keyframes (with their times, ns) waiting for the odometry of their time to come.
+    held: std::collections::VecDeque<(u64, Keyframe)>,
     summary: Summary,
 }
 
@@ -82,6 +93,8 @@ pub async fn run(node: &mut Node) -> Result<Summary, NodeError> {
         visits: node.publisher::<SessionControl>("visits", WORK_QUEUE)?,
         camera: node.param("camera", "cam0".to_owned())?,
         visit_keyframes: 0,
+        odometry: OdometryTrack::default(),
+        held: Default::default(),
         summary: Summary::default(),
     };
     let mut ingest = Ingest {
@@ -98,7 +111,6 @@ pub async fn run(node: &mut Node) -> Result<Summary, NodeError> {
     let (mut infos, mut odometry) = (std::pin::pin!(infos.async_stream()), std::pin::pin!(odometry.async_stream()));
     let mut control = std::pin::pin!(control.async_stream());
     let mut camera_info = CameraInfo::default();
-    let mut prior: Option<PoseWithCovariance> = None;
     node.log(
         LogLevel::Info,
         &format!("ingesting {}", session.as_deref().unwrap_or("visits named by /revisit/session")),
@@ -111,23 +123,31 @@ pub async fn run(node: &mut Node) -> Result<Summary, NodeError> {
     loop {
         let frame = tokio::select! {
             () = &mut stopped => break,
-            Some(Ok((image, _))) = images.next() => Ok(Frame::raw(image, received_ns(node))),
-            Some(Ok((image, _))) = compressed.next() => Frame::compressed(image, received_ns(node)),
+            Some(Ok((image, info))) = images.next() => {
+                ingest.lost(&mut out, &info);
+                Ok(Frame::raw(image, received_ns(node)))
+            }
+            Some(Ok((image, info))) = compressed.next() => {
+                ingest.lost(&mut out, &info);
+                Frame::compressed(image, received_ns(node))
+            }
             Some(Ok((info, _))) = infos.next() => {
                 camera_info = info;
                 let frames = std::mem::take(&mut waiting);
-                offer(node, &mut out, &mut ingest, (frames, true), &camera_info, prior).await?;
+                offer(node, &mut out, &mut ingest, (frames, true), &camera_info).await?;
                 continue;
             }
             Some(Ok((message, _))) = odometry.next() => {
                 let p = message.pose.pose.position;
                 ingest.stream.position([p.x, p.y, p.z]);
-                prior = Some(message.pose);
+                let stamp_ns = u64::try_from(message.header.stamp.as_nanos()).unwrap_or_default();
+                out.odometry.push(stamp_ns, message.pose);
+                release(&mut out, false).await?;
                 continue;
             }
             Some(Ok((message, _))) = control.next() => {
                 let frames = std::mem::take(&mut waiting);
-                offer(node, &mut out, &mut ingest, (frames, true), &camera_info, prior).await?;
+                offer(node, &mut out, &mut ingest, (frames, true), &camera_info).await?;
                 let events = match message.command {
                     SessionControl::START => ingest.stream.start(&message.session),
                     SessionControl::END => ingest.stream.end(),
@@ -139,7 +159,7 @@ pub async fn run(node: &mut Node) -> Result<Summary, NodeError> {
                 publish(node, &mut out, events).await?;
                 if message.command == SessionControl::START {
                     let early = ingest.early_frames(&mut out, message.header.stamp.as_nanos());
-                    offer(node, &mut out, &mut ingest, (early, false), &camera_info, prior).await?;
+                    offer(node, &mut out, &mut ingest, (early, false), &camera_info).await?;
                 }
                 continue;
             }
@@ -149,13 +169,14 @@ pub async fn run(node: &mut Node) -> Result<Summary, NodeError> {
             continue;
         }
         let frames = std::mem::take(&mut waiting);
-        offer(node, &mut out, &mut ingest, (frames, true), &camera_info, prior).await?;
+        offer(node, &mut out, &mut ingest, (frames, true), &camera_info).await?;
     }
     let frames = std::mem::take(&mut waiting);
-    offer(node, &mut out, &mut ingest, (frames, true), &camera_info, prior).await?;
+    offer(node, &mut out, &mut ingest, (frames, true), &camera_info).await?;
     let events = ingest.stream.end();
     publish(node, &mut out, events).await?;
     ingest.drop_frames(&mut out, ingest.early.len());
+    release(&mut out, true).await?;
     Ok(out.summary)
 }
 
@@ -175,6 +196,11 @@ struct Ingest {
 }
 
 impl Ingest {
+    /// Counts the frames the camera sent before this one that never arrived.
+    fn lost(&self, out: &mut Outputs, info: &MessageInfo) {
+        out.summary.lost += self.stage.sequenced(info);
+    }
+
     fn drop_frames(&self, out: &mut Outputs, count: usize) {
         self.stage.dropped(count as u64);
         out.summary.dropped += count as u64;
@@ -200,7 +226,6 @@ async fn offer(
     ingest: &mut Ingest,
     (frames, arrived): (Vec<Result<Frame, String>>, bool),
     camera_info: &CameraInfo,
-    prior: Option<PoseWithCovariance>,
 ) -> Result<(), NodeError> {
     if arrived {
         ingest.stage.received_many(frames.len() as u64);
@@ -232,7 +257,7 @@ async fn offer(
             continue;
         }
         ingest.last_stamp_ns = Some(time_ns);
-        let image = match frame.decode(Path::new("image")) {
+        let image = match frame.preview(Path::new("image"), PREVIEW_WIDTH_PX) {
             Ok(image) => image,
             Err(error) => {
                 node.log(LogLevel::Warn, &format!("frame dropped: {error}"));
@@ -240,7 +265,7 @@ async fn offer(
                 continue;
             }
         };
-        let pending = Pending { frame, camera_info: camera_info.clone(), prior };
+        let pending = Pending { frame, time_ns, camera_info: camera_info.clone() };
         let events = ingest.stream.frame(pending, time_ns, &image);
         publish(node, out, events).await?;
         ingest.stage.done(started.elapsed());
@@ -258,7 +283,7 @@ async fn publish(node: &Node, out: &mut Outputs, events: Vec<VisitEvent<Pending>
                 out.summary.visits.push(visit);
             }
             VisitEvent::Keyframe { visit, index, frame, .. } => {
-                let Pending { frame, camera_info, prior } = frame;
+                let Pending { frame, time_ns, camera_info } = frame;
                 let stamp = frame.stamp;
                 let (format, data) = match frame.image.into_file(Path::new(&visit)) {
                     Ok(file) => file,
@@ -281,18 +306,40 @@ async fn publish(node: &Node, out: &mut Outputs, events: Vec<VisitEvent<Pending>
                     image_name,
                     image,
                     camera_info,
-                    has_prior: prior.is_some(),
-                    prior: prior.unwrap_or_default(),
+                    has_prior: false,
+                    prior: Default::default(),
                 };
-                out.keyframes.async_publish(message).await.map_err(|e| NodeError::Dds(format!("{e:?}")))?;
+                out.held.push_back((time_ns, message));
+                release(out, false).await?;
                 out.summary.keyframes += 1;
                 out.visit_keyframes += 1;
             }
             VisitEvent::Ended { visit, frames } => {
+                release(out, true).await?;
                 say(node, &out.visits, SessionControl::END, &visit, out.visit_keyframes).await?;
                 node.log(LogLevel::Info, &format!("visit {visit} ended after {frames} frames"));
             }
         }
+    }
+    Ok(())
+}
+
+/// Publishes the held keyframes, in order, each with the vehicle's pose at its time by odometry:
+/// those whose odometry has come, or all of them (`all`: the visit ends; with the nearest pose
+/// within half a second, if any). Without odometry, a keyframe goes at once, with no pose; one
+/// waits for at most `HELD_KEYFRAMES` others.
+async fn release(out: &mut Outputs, all: bool) -> Result<(), NodeError> {
+    const HELD_KEYFRAMES: usize = 8;
+    while let Some(time_ns) = out.held.front().map(|(time_ns, _)| *time_ns) {
+        let ready = all || out.odometry.is_empty() || out.odometry.covers(time_ns) || out.held.len() > HELD_KEYFRAMES;
+        if !ready {
+            break;
+        }
+        let Some((_, mut message)) = out.held.pop_front() else { break };
+        if let Some(pose) = out.odometry.at(time_ns) {
+            (message.has_prior, message.prior) = (true, pose);
+        }
+        out.keyframes.async_publish(message).await.map_err(|e| NodeError::Dds(format!("{e:?}")))?;
     }
     Ok(())
 }

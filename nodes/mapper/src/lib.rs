@@ -8,6 +8,11 @@
 //! replay, and the same after a restart). The work folder holds what `revisit reconstruct` writes
 //! (model/, points.ply, poses.csv, report.json), so the map opens in COLMAP too.
 //!
+//! When keyframes came with odometry (the ingest node's `odom`), the published map is placed on
+//! the newest such visit's odometry: scaled to metres by the similarity that best fits its
+//! registered cameras to their odometry positions, and `map -> odom` (REP 105: the odometry
+//! frame in the map frame) goes out on `/tf` once a second. The files keep COLMAP's own frame.
+//!
 //! A visit is mapped once its END has come (with its keyframe count) and everything it needs has:
 //! every keyframe and its features and, with `places:=true` (the default when visits are linked by
 //! place recognition), each keyframe's candidates and a matcher's answer for every candidate pair.
@@ -16,10 +21,17 @@
 //! nothing the graph already delivered. With `places:=false` the mapper finds and matches the
 //! cross-visit pairs itself.
 //!
+//! Services: `~/save` (`revisit_msgs/srv/Save`) writes the map as `revisit reconstruct` does
+//! (model/, points.ply, poses.csv, report.json) to the folder asked for (`save_dir` when the
+//! request names none); `~/map` (`std_srvs/srv/Trigger`) maps now, without waiting for the visit
+//! in progress to end: what has not arrived yet for its keyframes (features, place candidates,
+//! matchers' answers) the mapper computes itself, and the visit is mapped again, extending the
+//! model, when it ends. `revisit service save|map` calls them.
+//!
 //! Parameters: `work_dir` (default `revisit-state/mapper`), `options_file` (a JSON file of the
 //! reconstruction's options, as `report.json` shows them; default the defaults), `cross` (the
 //! strategy, overriding the file's), `places`, `frame_id` (the map's frame, default `map`),
-//! `python`, `models`.
+//! `odom_frame_id` (default `odom`), `save_dir` (default `WORK_DIR/saved`), `python`, `models`.
 //!
 //! Restartable: keyframes are files in the work folder, features are in the store, and every
 //! other input is journalled (`mapper.journal`) before it is acted on; a restarted mapper maps
@@ -30,12 +42,14 @@ use std::path::{Path, PathBuf};
 
 use futures::StreamExt;
 use revisit_core::PairKind;
-use revisit_msgs::geometry_msgs::PoseArray;
+use revisit_msgs::geometry_msgs::{PoseArray, TransformStamped};
 use revisit_msgs::nav_msgs::Path as PathMessage;
 use revisit_msgs::revisit_msgs::{CrossVisitMatches, Features, Keyframe, MapStatus, PlaceCandidates, SessionControl};
 use revisit_msgs::sensor_msgs::PointCloud2;
+use revisit_msgs::services::{Save, SaveResponse, Trigger, TriggerResponse};
 use revisit_msgs::std_msgs::Header;
-use revisit_node::{Journal, LogLevel, Node, NodeError, Publisher, LATCHED, WORK_QUEUE};
+use revisit_msgs::tf2_msgs::TFMessage;
+use revisit_node::{History, Journal, LogLevel, Node, NodeError, Publisher, LATCHED, RELIABLE, WORK_QUEUE};
 use revisit_pipeline::cross::LearnedPair;
 use revisit_pipeline::ingest::{list_session, SessionSpec};
 use revisit_pipeline::locate::Tools;
@@ -86,6 +100,11 @@ enum Entry {
         session: String,
         stamp_ns: i64,
     },
+    /// A keyframe's camera position by the vehicle's odometry (in the odometry frame, metres).
+    Prior {
+        image: String,
+        position_m: [f64; 3],
+    },
 }
 
 /// What the journal says.
@@ -102,6 +121,8 @@ struct Inputs {
     mapped: BTreeSet<String>,
     /// Each visit's newest keyframe stamp, ns.
     newest_ns: BTreeMap<String, i64>,
+    /// Keyframes' camera positions by odometry, metres.
+    priors: BTreeMap<String, [f64; 3]>,
 }
 
 impl Inputs {
@@ -124,6 +145,9 @@ impl Inputs {
             Entry::Newest { session, stamp_ns } => {
                 self.newest_ns.insert(session, stamp_ns);
             }
+            Entry::Prior { image, position_m } => {
+                self.priors.insert(image, position_m);
+            }
         }
     }
 
@@ -142,6 +166,11 @@ fn full(session: &str, file: &str) -> String {
 struct Outputs {
     /// The map's frame.
     frame_id: String,
+    /// The odometry's frame.
+    odom_frame_id: String,
+    tf: Publisher<TFMessage>,
+    /// `map -> odom`, when the map could be placed on the odometry: sent on `/tf` every second.
+    map_to_odom: Option<TransformStamped>,
     cloud: Publisher<PointCloud2>,
     cameras: Publisher<PoseArray>,
     status: Publisher<MapStatus>,
@@ -172,6 +201,7 @@ pub async fn run(node: &mut Node) -> Result<Summary, NodeError> {
     let places = node.param("places", options.cross.places())?;
     let tools = Tools { python: node.param("python", None)?, models: node.param("models", None)?, ..Tools::default() };
     let frame_id: String = node.param("frame_id", "map".to_owned())?;
+    let save_dir: PathBuf = node.param("save_dir", work_dir.join("saved"))?;
     let work = |e: revisit_pipeline::PipelineError| NodeError::Work(e.to_string());
 
     let mut mapper = tokio::task::block_in_place(|| Mapper::open(&work_dir, options, tools, places))?;
@@ -180,8 +210,12 @@ pub async fn run(node: &mut Node) -> Result<Summary, NodeError> {
     let visits = node.subscription::<SessionControl>("visits", WORK_QUEUE)?;
     let candidates = node.subscription::<PlaceCandidates>("places/candidates", WORK_QUEUE)?;
     let found = node.subscription::<CrossVisitMatches>("matches", WORK_QUEUE)?;
+    let (save, map_now) = (node.server::<Save>("~/save")?, node.server::<Trigger>("~/map")?);
     let mut out = Outputs {
         frame_id,
+        odom_frame_id: node.param("odom_frame_id", "odom".to_owned())?,
+        tf: node.publisher("/tf", RELIABLE.history(History::KeepLast { depth: 100 }))?,
+        map_to_odom: None,
         cloud: node.publisher("map/cloud", LATCHED)?,
         cameras: node.publisher("map/cameras", LATCHED)?,
         status: node.publisher("map/status", LATCHED)?,
@@ -198,8 +232,8 @@ pub async fn run(node: &mut Node) -> Result<Summary, NodeError> {
     }
     // A restarted mapper shows the map it has.
     if mapper.workspace.dir().join("report.json").exists() {
-        let (outputs, header) = tokio::task::block_in_place(|| mapper.map_outputs(&out.frame_id))?;
-        publish_map(node, &mut out, outputs, header).await?;
+        let outputs = tokio::task::block_in_place(|| mapper.map_outputs(&out))?;
+        publish_map(node, &mut out, outputs).await?;
     }
     let stopped = node.stopped();
     let mut stopped = std::pin::pin!(stopped);
@@ -208,6 +242,8 @@ pub async fn run(node: &mut Node) -> Result<Summary, NodeError> {
     let (mut visits, mut candidates) =
         (std::pin::pin!(visits.async_stream()), std::pin::pin!(candidates.async_stream()));
     let mut found = std::pin::pin!(found.async_stream());
+    let (mut saves, mut map_requests) = (std::pin::pin!(save.requests()), std::pin::pin!(map_now.requests()));
+    let mut tf_tick = tokio::time::interval(std::time::Duration::from_secs(1));
     node.log(LogLevel::Info, &format!("mapping into {}", work_dir.display()));
     loop {
         let result = tokio::select! {
@@ -224,6 +260,38 @@ pub async fn run(node: &mut Node) -> Result<Summary, NodeError> {
                 mapper.record(Entry::Candidates { image, candidates })
             }
             Some(Ok((message, _))) = found.next() => mapper.record(Entry::Found(message)),
+            _ = tf_tick.tick() => {
+                if let Some(transform) = &out.map_to_odom {
+                    let mut transform = transform.clone();
+                    transform.header.stamp = node.now();
+                    out.tf.async_publish(TFMessage { transforms: vec![transform] }).await.map_err(dds)?;
+                }
+                continue;
+            }
+            Some(Ok((id, request))) = saves.next() => {
+                let dir = match request.directory.as_str() {
+                    "" => save_dir.clone(),
+                    dir => PathBuf::from(dir),
+                };
+                let response = match tokio::task::block_in_place(|| mapper.workspace.save_outputs(&dir)) {
+                    Ok(written) => SaveResponse { success: true, message: format!("wrote {} to {}", written.join(", "), dir.display()) },
+                    Err(error) => SaveResponse { success: false, message: format!("nothing saved: {error}") },
+                };
+                node.log(if response.success { LogLevel::Info } else { LogLevel::Warn }, &response.message);
+                save.respond(id, response).await?;
+                continue;
+            }
+            Some(Ok((id, _))) = map_requests.next() => {
+                let response = match mapper.unmapped() {
+                    None => TriggerResponse { success: true, message: "the map holds every keyframe already".into() },
+                    Some(session) => match map_and_publish(node, &mut out, &mut mapper, &session, &cancel, false).await? {
+                        Ok(said) => TriggerResponse { success: true, message: said },
+                        Err(error) => TriggerResponse { success: false, message: format!("mapping {session} failed: {error}") },
+                    },
+                };
+                map_now.respond(id, response).await?;
+                continue;
+            }
         };
         stage.received();
         if let Err(error) = result {
@@ -234,28 +302,54 @@ pub async fn run(node: &mut Node) -> Result<Summary, NodeError> {
         }
         while let Some(session) = tokio::task::block_in_place(|| mapper.ready()).map_err(work)? {
             node.log(LogLevel::Info, &format!("visit {session} is complete: mapping"));
-            let header = mapper.header(&out.frame_id);
-            let _ = out.status.async_publish(status(&header, MapStatus::MAPPING, &format!("mapping {session}"))).await;
-            match tokio::task::block_in_place(|| mapper.map(&session, &cancel)) {
-                Ok(report) => {
-                    let (outputs, header) = tokio::task::block_in_place(|| mapper.map_outputs(&out.frame_id))?;
-                    publish_map(node, &mut out, outputs, header).await?;
-                    let (models, unlinked) = (report.models, report.unlinked_sessions);
-                    let said =
-                        format!("visit {session} mapped and published: {models} model(s), unlinked {unlinked:?}");
-                    node.log(LogLevel::Info, &said);
-                }
+            match map_and_publish(node, &mut out, &mut mapper, &session, &cancel, true).await? {
+                Ok(_) => {}
                 Err(revisit_pipeline::PipelineError::Cancelled) => break,
-                Err(error) => {
-                    node.log(LogLevel::Error, &format!("mapping {session} failed: {error}"));
-                    let header = mapper.header(&out.frame_id);
-                    let _ = out.status.async_publish(status(&header, MapStatus::FAILED, &error.to_string())).await;
-                    return Err(work(error));
-                }
+                Err(error) => return Err(work(error)),
             }
         }
     }
     Ok(mapper.summary)
+}
+
+/// Maps (the visit `session` complete when `complete`, else as far as it has come) and publishes
+/// the map: what was said, or the mapping's error (said on `map/status` as FAILED).
+async fn map_and_publish(
+    node: &mut Node,
+    out: &mut Outputs,
+    mapper: &mut Mapper,
+    session: &str,
+    cancel: &Cancel,
+    complete: bool,
+) -> Result<Result<String, revisit_pipeline::PipelineError>, NodeError> {
+    let header = mapper.header(&out.frame_id);
+    let _ = out.status.async_publish(status(&header, MapStatus::MAPPING, &format!("mapping {session}"))).await;
+    let mapped = tokio::task::block_in_place(|| match complete {
+        true => mapper.map(session, cancel),
+        false => mapper.reconstruct(cancel),
+    });
+    match mapped {
+        Ok(report) => {
+            let outputs = tokio::task::block_in_place(|| mapper.map_outputs(out))?;
+            publish_map(node, out, outputs).await?;
+            let (models, unlinked) = (report.models, report.unlinked_sessions);
+            let registered = report.sessions.get(session).map_or(0, |s| s.registered);
+            let so_far = if complete { "" } else { " as far as it has come" };
+            let said = format!(
+                "visit {session} mapped{so_far} and published: {registered} of its images registered, {models} model(s), unlinked {unlinked:?}"
+            );
+            node.log(LogLevel::Info, &said);
+            Ok(Ok(said))
+        }
+        Err(error) => {
+            if !matches!(error, revisit_pipeline::PipelineError::Cancelled) {
+                node.log(LogLevel::Error, &format!("mapping {session} failed: {error}"));
+                let header = mapper.header(&out.frame_id);
+                let _ = out.status.async_publish(status(&header, MapStatus::FAILED, &error.to_string())).await;
+            }
+            Ok(Err(error))
+        }
+    }
 }
 
 fn status(header: &Header, state: u8, message: &str) -> MapStatus {
@@ -337,6 +431,10 @@ impl Mapper {
         self.summary.keyframes += 1;
         if !self.inputs.visits.contains(&keyframe.session) {
             self.record(Entry::Visit { session: keyframe.session.clone() })?;
+        }
+        if keyframe.has_prior {
+            let p = keyframe.prior.pose.position;
+            self.record(Entry::Prior { image: name.clone(), position_m: [p.x, p.y, p.z] })?;
         }
         let stamp_ns = keyframe.header.stamp.as_nanos();
         if self.inputs.newest_ns.get(&keyframe.session).is_none_or(|newest| stamp_ns > *newest) {
@@ -433,19 +531,52 @@ impl Mapper {
     }
 
     /// The work folder's map (its `report.json` and chosen model) as messages (`None`: COLMAP
-    /// registered no model), and their header.
-    fn map_outputs(&self, frame_id: &str) -> Result<(Option<MapMessages>, Header), NodeError> {
+    /// registered no model), and their header. When keyframes of a visit came with odometry, the
+    /// map is placed on the newest such visit's odometry: scaled to metres, with the `map -> odom`
+    /// transform (REP 105) that goes with it.
+    fn map_outputs(&self, out: &Outputs) -> Result<MapOutputs, NodeError> {
         let work = |e: String| NodeError::Work(e);
-        let header = self.header(frame_id);
+        let header = self.header(&out.frame_id);
         let report = Report::read(&self.workspace.dir().join("report.json")).map_err(|e| work(e.to_string()))?;
-        let Some(model_dir) = &report.chosen_model else { return Ok((None, header)) };
-        let model = revisit_colmap::read_model(model_dir).map_err(|e| work(e.to_string()))?;
+        let Some(model_dir) = &report.chosen_model else { return Ok(MapOutputs { header, ..MapOutputs::default() }) };
+        let mut model = revisit_colmap::read_model(model_dir).map_err(|e| work(e.to_string()))?;
         let visits: Vec<String> = self.workspace.sessions().iter().map(|s| s.name.clone()).collect();
-        Ok((Some(messages::map_messages(&header, &model, &report, &visits)), header))
+        let placed = visits.iter().rev().find_map(|visit| {
+            let prefix = format!("{visit}/");
+            let priors = self.inputs.priors.iter().filter(|(image, _)| image.starts_with(&prefix));
+            messages::odom_from_map(&model, &priors.map(|(k, v)| (k.clone(), *v)).collect())
+        });
+        let map_to_odom = placed.map(|odom_from_map| {
+            model.transform(odom_from_map.scale, &revisit_core::Rigid3::identity());
+            let odom_from_metric_map = revisit_core::Similarity { scale: 1.0, ..odom_from_map };
+            messages::map_to_odom(&header, &out.odom_frame_id, &odom_from_metric_map)
+        });
+        let messages = Some(messages::map_messages(&header, &model, &report, &visits));
+        Ok(MapOutputs { messages, header, map_to_odom })
     }
 
-    /// Stores the matchers' answers for the visit's pairs, then runs the reconstruction.
+    /// The first visit in the store not mapped complete (the one in progress), if any.
+    fn unmapped(&self) -> Option<String> {
+        self.workspace.sessions().iter().map(|s| s.name.clone()).find(|name| !self.inputs.mapped.contains(name))
+    }
+
+    /// Maps a complete visit ([`Mapper::reconstruct`]), records it mapped, and lets the next visit
+    /// waiting into the store.
     fn map(&mut self, session: &str, cancel: &Cancel) -> Result<Report, revisit_pipeline::PipelineError> {
+        let report = self.reconstruct(cancel)?;
+        let entry = Entry::Mapped { session: session.to_owned() };
+        self.record(entry).map_err(|e| revisit_pipeline::PipelineError::Name(e.to_string()))?;
+        self.summary.mapped.push(session.to_owned());
+        if !self.queued.is_empty() {
+            let next = self.queued.remove(0);
+            self.admit(&next).map_err(|e| revisit_pipeline::PipelineError::Name(e.to_string()))?;
+        }
+        Ok(report)
+    }
+
+    /// Stores the matchers' answers, then runs the reconstruction on every keyframe in the store
+    /// (computing what has not come for them).
+    fn reconstruct(&mut self, cancel: &Cancel) -> Result<Report, revisit_pipeline::PipelineError> {
         let ids = self.workspace.store().image_ids()?;
         let mut found = Vec::new();
         for ((image1, image2), message) in &self.inputs.found {
@@ -460,26 +591,24 @@ impl Mapper {
         if !found.is_empty() {
             self.workspace.add_cross_matches(found)?;
         }
-        let report = self.workspace.run(&Silent, cancel)?;
-        let entry = Entry::Mapped { session: session.to_owned() };
-        self.record(entry).map_err(|e| revisit_pipeline::PipelineError::Name(e.to_string()))?;
-        self.summary.mapped.push(session.to_owned());
-        if !self.queued.is_empty() {
-            let next = self.queued.remove(0);
-            self.admit(&next).map_err(|e| revisit_pipeline::PipelineError::Name(e.to_string()))?;
-        }
-        Ok(report)
+        self.workspace.run(&Silent, cancel)
     }
 }
 
-/// Publishes the map on the map topics.
-async fn publish_map(
-    node: &mut Node,
-    out: &mut Outputs,
-    outputs: Option<MapMessages>,
+/// The map as the node publishes it.
+#[derive(Default)]
+struct MapOutputs {
+    /// `None`: COLMAP registered no model.
+    messages: Option<MapMessages>,
     header: Header,
-) -> Result<(), NodeError> {
-    let Some(MapMessages { cloud, paths, cameras, status: map_status }) = outputs else {
+    map_to_odom: Option<TransformStamped>,
+}
+
+/// Publishes the map on the map topics (and `map -> odom` on `/tf` from now on).
+async fn publish_map(node: &mut Node, out: &mut Outputs, outputs: MapOutputs) -> Result<(), NodeError> {
+    let MapOutputs { messages, header, map_to_odom } = outputs;
+    out.map_to_odom = map_to_odom;
+    let Some(MapMessages { cloud, paths, cameras, status: map_status }) = messages else {
         let message = status(&header, MapStatus::FAILED, "COLMAP registered no model");
         return out.status.async_publish(message).await.map_err(dds);
     };

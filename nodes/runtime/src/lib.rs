@@ -15,6 +15,7 @@ mod node;
 mod params;
 mod raw;
 mod replay;
+mod services;
 mod stats;
 
 pub use args::{read_params_file, ParameterSource, Remap, RosArgs};
@@ -29,7 +30,8 @@ pub use replay::{play, record, PlayOptions, Played, RecordOptions, ReplayError};
 pub use ros2_client::dds::rustdds::GUID as Guid;
 pub use ros2_client::log::LogLevel;
 pub use ros2_client::qos::{Durability, History, Reliability};
-pub use ros2_client::{Publisher, QosProfile, Subscription};
+pub use ros2_client::{MessageInfo, Publisher, QosProfile, Subscription};
+pub use services::{Client, RequestId, Server};
 pub use stats::Stage;
 
 /// Log filter directives that keep DDS's chatter off the terminal: RustDDS narrates discovery at

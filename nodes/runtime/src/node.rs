@@ -136,6 +136,14 @@ impl Node {
         Ok(node)
     }
 
+    pub(crate) fn ros(&self) -> &ros2_client::Node {
+        &self.ros
+    }
+
+    pub(crate) fn ros_mut(&mut self) -> &mut ros2_client::Node {
+        &mut self.ros
+    }
+
     /// The node's name (`/namespace/name`).
     pub fn full_name(&self) -> String {
         self.names.full_name()

@@ -161,7 +161,7 @@ pub fn run(command: Command) -> Result<()> {
 }
 
 /// Runs `work` with a node named `name` (ROS arguments applied) on a tokio runtime.
-fn in_node<T>(name: &str, ros_args: &[String], work: impl AsyncFnOnce(&mut Node) -> Result<T>) -> Result<T> {
+pub(crate) fn in_node<T>(name: &str, ros_args: &[String], work: impl AsyncFnOnce(&mut Node) -> Result<T>) -> Result<T> {
     let args = RosArgs::parse(ros_args)?;
     let runtime = tokio::runtime::Runtime::new()?;
     runtime.block_on(async {

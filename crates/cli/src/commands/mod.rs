@@ -7,4 +7,5 @@ pub mod match_pair;
 pub mod models;
 pub mod options;
 pub mod reconstruct;
+pub mod service;
 pub mod synth;

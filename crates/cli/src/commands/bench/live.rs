@@ -71,6 +71,7 @@ impl Running {
 struct StageSeen {
     received: u64,
     dropped: u64,
+    lost: u64,
     done: u64,
     seconds_per_item: f64,
     first_done: Option<Instant>,
@@ -343,6 +344,7 @@ async fn drive(
                     }
                     seen.received = value("received").parse().unwrap_or(0);
                     seen.dropped = value("dropped").parse().unwrap_or(0);
+                    seen.lost = value("lost").parse().unwrap_or(0);
                     seen.done = done;
                     seen.seconds_per_item = value("seconds_per_item").parse().unwrap_or(0.0);
                 }
@@ -398,8 +400,8 @@ fn print_figures(args: &Args, width: u32, height: u32, all: &[Figures]) {
             figures.encoding, figures.published, figures.publish_s
         );
         println!(
-            "{:<28} {:>9} {:>8} {:>8} {:>14} {:>10} {:>13}",
-            "node: stage", "received", "dropped", "done", "sustained Hz", "s/item", "peak RSS MiB"
+            "{:<28} {:>9} {:>8} {:>6} {:>8} {:>14} {:>10} {:>13}",
+            "node: stage", "received", "dropped", "lost", "done", "sustained Hz", "s/item", "peak RSS MiB"
         );
         for (name, seen) in &figures.stages {
             let span = match (seen.first_done, seen.last_done) {
@@ -413,14 +415,14 @@ fn print_figures(args: &Args, width: u32, height: u32, all: &[Figures]) {
                 .find(|(node, _)| name.split(':').next().is_some_and(|n| n.trim_start_matches('/') == *node))
                 .map_or_else(|| "-".to_owned(), |(_, kib)| format!("{:.0}", *kib as f64 / 1024.0));
             println!(
-                "{name:<28} {:>9} {:>8} {:>8} {sustained:>14.2} {:>10.3} {memory:>13}",
-                seen.received, seen.dropped, seen.done, seen.seconds_per_item
+                "{name:<28} {:>9} {:>8} {:>6} {:>8} {sustained:>14.2} {:>10.3} {memory:>13}",
+                seen.received, seen.dropped, seen.lost, seen.done, seen.seconds_per_item
             );
         }
         let ingest = figures.stages.iter().find(|(n, _)| n.ends_with("ingest: frames")).map(|(_, s)| s);
-        let received = ingest.map_or(0, |s| s.received);
+        let (received, lost) = ingest.map_or((0, 0), |s| (s.received, s.lost));
         println!(
-            "frames lost before the ingest node (published - received): {} of {}",
+            "frames lost before the ingest node: {} of {} (published - received), {lost} counted by ingest on /diagnostics",
             figures.published.saturating_sub(received),
             figures.published
         );

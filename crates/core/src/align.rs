@@ -1,7 +1,7 @@
 //! Similarity alignment of point sets (Umeyama 1991).
 
+use crate::Rigid3;
 use nalgebra::{Matrix3, Point3, Rotation3, UnitQuaternion, Vector3};
-use revisit_core::Rigid3;
 use serde::Serialize;
 
 /// `dst = scale * rotation * src + translation`.
@@ -17,7 +17,7 @@ impl Similarity {
         Point3::from(self.rotation * point.coords * self.scale + self.translation)
     }
 
-    /// The rigid part, for [`revisit_core::Reconstruction::transform`]
+    /// The rigid part, for [`crate::Reconstruction::transform`]
     /// (which takes the scale separately).
     pub fn rigid(&self) -> Rigid3 {
         Rigid3::new(self.rotation, self.translation)
