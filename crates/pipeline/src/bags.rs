@@ -135,7 +135,8 @@ pub fn frames<'a>(
     })
 }
 
-fn frame_of(message: &RawMessage) -> Result<Frame, String> {
+/// A bag's image message as a frame (received at its log time).
+pub fn frame_of(message: &RawMessage) -> Result<Frame, String> {
     let type_name = message.topic.type_name.as_str();
     if type_name == Image::DEFINITION.name {
         let image: Image = revisit_msgs::decode(&message.data).map_err(|e| e.to_string())?;
@@ -555,7 +556,8 @@ fn write_keyframe(visit: &mut IngestedVisit, index: usize, keyframe: Keyframe) -
     Ok(())
 }
 
-fn only_image_topic(bag: &Bag) -> Result<String, PipelineError> {
+/// The bag's image topic (`sensor_msgs/Image` or `CompressedImage`) when it has exactly one.
+pub fn only_image_topic(bag: &Bag) -> Result<String, PipelineError> {
     let info = bag.info().map_err(bag_error)?;
     let images: Vec<&str> = info
         .topics
@@ -567,7 +569,7 @@ fn only_image_topic(bag: &Bag) -> Result<String, PipelineError> {
         [topic] => Ok(topic.to_owned()),
         [] => Err(PipelineError::Bag(format!("{}: no image topic", bag.path().display()))),
         _ => Err(PipelineError::Bag(format!(
-            "{}: several image topics ({}); choose one with --topic",
+            "{}: several image topics ({}); name the one to read",
             bag.path().display(),
             images.join(", ")
         ))),

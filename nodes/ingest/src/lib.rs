@@ -10,18 +10,30 @@
 //! `camera` (default `cam0`). `/revisit/session` is read latched (transient local, as `bag pack`
 //! and `synth --bag` record it); a volatile publisher needs
 //! `-p qos_overrides./revisit/session.subscription.durability:=volatile`.
+//!
+//! Or from a bag: `bag` (a rosbag2 folder or file) is read first, its one image topic (or
+//! `bag_topic`), camera info, odometry and visit markers taken in as if they came over the
+//! topics, at the bag's pace times `bag_rate` (default 1; 0: as fast as it reads); then the
+//! node goes on with its topics.
+//!
+//! Frames are judged on a preview (a JPEG decoded at a reduced scale), so a 1280x720 camera at
+//! 30 Hz is kept up with; frames its publishers sent that never arrived are counted as `lost` on
+//! `/diagnostics`. A keyframe waits for the odometry of its stamp and carries the pose
+//! interpolated there.
 
-use std::path::Path;
-use std::time::Instant;
+use std::path::{Path, PathBuf};
+use std::time::{Duration, Instant};
 
 use futures::StreamExt;
+use revisit_bag::Bag;
 use revisit_msgs::nav_msgs::Odometry;
 use revisit_msgs::revisit_msgs::{Keyframe, SessionControl};
 use revisit_msgs::sensor_msgs::{CameraInfo, CompressedImage, Image};
+use revisit_msgs::Message;
 use revisit_node::{
     History, LogLevel, MessageInfo, Node, NodeError, Publisher, Stage, LATCHED, SENSOR_DATA, WORK_QUEUE,
 };
-use revisit_pipeline::bags::{frame_file, Frame};
+use revisit_pipeline::bags::{frame_file, frame_of, only_image_topic, Frame, SESSION_TOPIC};
 use revisit_pipeline::keyframes::{KeyframeOptions, VisitEvent, VisitStream, DEFAULT_MIN_OVERLAP, PREVIEW_WIDTH_PX};
 use revisit_pipeline::odometry::OdometryTrack;
 
@@ -79,6 +91,10 @@ pub async fn run(node: &mut Node) -> Result<Summary, NodeError> {
         distance_m: node.param("keyframe.distance_m", None)?,
     };
     keyframes.check().map_err(|reason| NodeError::Parameter { name: "keyframe.*".into(), reason })?;
+    let bag = match node.param::<Option<PathBuf>>("bag", None)? {
+        Some(path) => Some(BagInput::open(node, &path)?),
+        None => None,
+    };
 
     let images = node.subscription::<Image>("image", SENSOR_DATA)?;
     let compressed = node.subscription::<CompressedImage>("image/compressed", SENSOR_DATA)?;
@@ -110,74 +126,186 @@ pub async fn run(node: &mut Node) -> Result<Summary, NodeError> {
         (std::pin::pin!(images.async_stream()), std::pin::pin!(compressed.async_stream()));
     let (mut infos, mut odometry) = (std::pin::pin!(infos.async_stream()), std::pin::pin!(odometry.async_stream()));
     let mut control = std::pin::pin!(control.async_stream());
-    let mut camera_info = CameraInfo::default();
+    let mut camera = Camera::default();
+    if let Some(bag) = &bag {
+        read_bag(node, &mut out, &mut ingest, &mut camera, bag).await?;
+    }
     node.log(
         LogLevel::Info,
         &format!("ingesting {}", session.as_deref().unwrap_or("visits named by /revisit/session")),
     );
-    // Frames that came before the camera's first CameraInfo wait for it (a driver publishes both
-    // with one stamp, in either order), up to WAIT_FOR_INFO frames: a camera without CameraInfo
-    // is then taken as uncalibrated.
-    const WAIT_FOR_INFO: usize = 5;
-    let mut waiting: Vec<Result<Frame, String>> = Vec::new();
     loop {
-        let frame = tokio::select! {
+        let input = tokio::select! {
             () = &mut stopped => break,
             Some(Ok((image, info))) = images.next() => {
                 ingest.lost(&mut out, &info);
-                Ok(Frame::raw(image, received_ns(node)))
+                Input::Frame(Ok(Frame::raw(image, received_ns(node))))
             }
             Some(Ok((image, info))) = compressed.next() => {
                 ingest.lost(&mut out, &info);
-                Frame::compressed(image, received_ns(node))
+                Input::Frame(Frame::compressed(image, received_ns(node)))
             }
-            Some(Ok((info, _))) = infos.next() => {
-                camera_info = info;
-                let frames = std::mem::take(&mut waiting);
-                offer(node, &mut out, &mut ingest, (frames, true), &camera_info).await?;
-                continue;
-            }
-            Some(Ok((message, _))) = odometry.next() => {
-                let p = message.pose.pose.position;
-                ingest.stream.position([p.x, p.y, p.z]);
-                let stamp_ns = u64::try_from(message.header.stamp.as_nanos()).unwrap_or_default();
-                out.odometry.push(stamp_ns, message.pose);
-                release(&mut out, false).await?;
-                continue;
-            }
-            Some(Ok((message, _))) = control.next() => {
-                let frames = std::mem::take(&mut waiting);
-                offer(node, &mut out, &mut ingest, (frames, true), &camera_info).await?;
-                let events = match message.command {
-                    SessionControl::START => ingest.stream.start(&message.session),
-                    SessionControl::END => ingest.stream.end(),
-                    other => {
-                        node.log(LogLevel::Warn, &format!("session control command {other} is neither START nor END"));
-                        continue;
-                    }
-                };
-                publish(node, &mut out, events).await?;
-                if message.command == SessionControl::START {
-                    let early = ingest.early_frames(&mut out, message.header.stamp.as_nanos());
-                    offer(node, &mut out, &mut ingest, (early, false), &camera_info).await?;
-                }
-                continue;
-            }
+            Some(Ok((info, _))) = infos.next() => Input::CameraInfo(Box::new(info)),
+            Some(Ok((message, _))) = odometry.next() => Input::Odometry(Box::new(message)),
+            Some(Ok((message, _))) = control.next() => Input::Control(message),
         };
-        waiting.push(frame);
-        if camera_info.k == [0.0; 9] && waiting.len() <= WAIT_FOR_INFO {
-            continue;
-        }
-        let frames = std::mem::take(&mut waiting);
-        offer(node, &mut out, &mut ingest, (frames, true), &camera_info).await?;
+        take(node, &mut out, &mut ingest, &mut camera, input).await?;
     }
-    let frames = std::mem::take(&mut waiting);
-    offer(node, &mut out, &mut ingest, (frames, true), &camera_info).await?;
+    let frames = std::mem::take(&mut camera.waiting);
+    offer(node, &mut out, &mut ingest, (frames, true), &camera.info).await?;
     let events = ingest.stream.end();
     publish(node, &mut out, events).await?;
     ingest.drop_frames(&mut out, ingest.early.len());
     release(&mut out, true).await?;
     Ok(out.summary)
+}
+
+/// One input of the node, from its topics or from the bag it reads.
+enum Input {
+    Frame(Result<Frame, String>),
+    CameraInfo(Box<CameraInfo>),
+    Odometry(Box<Odometry>),
+    Control(SessionControl),
+}
+
+/// The camera's calibration so far, and the frames that wait for it.
+#[derive(Default)]
+struct Camera {
+    info: CameraInfo,
+    /// Frames that came before the camera's first CameraInfo wait for it (a driver publishes
+    /// both with one stamp, in either order), up to [`WAIT_FOR_INFO`] frames: a camera without
+    /// CameraInfo is then taken as uncalibrated.
+    waiting: Vec<Result<Frame, String>>,
+}
+
+const WAIT_FOR_INFO: usize = 5;
+
+/// Takes one input in: frames to the visit stream, calibration, odometry, a visit's START or END.
+async fn take(
+    node: &Node,
+    out: &mut Outputs,
+    ingest: &mut Ingest,
+    camera: &mut Camera,
+    input: Input,
+) -> Result<(), NodeError> {
+    match input {
+        Input::Frame(frame) => {
+            camera.waiting.push(frame);
+            if camera.info.k == [0.0; 9] && camera.waiting.len() <= WAIT_FOR_INFO {
+                return Ok(());
+            }
+            let frames = std::mem::take(&mut camera.waiting);
+            offer(node, out, ingest, (frames, true), &camera.info).await
+        }
+        Input::CameraInfo(info) => {
+            camera.info = *info;
+            let frames = std::mem::take(&mut camera.waiting);
+            offer(node, out, ingest, (frames, true), &camera.info).await
+        }
+        Input::Odometry(message) => {
+            let p = message.pose.pose.position;
+            ingest.stream.position([p.x, p.y, p.z]);
+            let stamp_ns = u64::try_from(message.header.stamp.as_nanos()).unwrap_or_default();
+            out.odometry.push(stamp_ns, message.pose);
+            release(out, false).await
+        }
+        Input::Control(message) => {
+            let frames = std::mem::take(&mut camera.waiting);
+            offer(node, out, ingest, (frames, true), &camera.info).await?;
+            let events = match message.command {
+                SessionControl::START => ingest.stream.start(&message.session),
+                SessionControl::END => ingest.stream.end(),
+                other => {
+                    node.log(LogLevel::Warn, &format!("session control command {other} is neither START nor END"));
+                    return Ok(());
+                }
+            };
+            publish(node, out, events).await?;
+            if message.command == SessionControl::START {
+                let early = ingest.early_frames(out, message.header.stamp.as_nanos());
+                offer(node, out, ingest, (early, false), &camera.info).await?;
+            }
+            Ok(())
+        }
+    }
+}
+
+/// A bag the node reads (parameter `bag`): its one image topic (or `bag_topic`), at the bag's pace
+/// times `bag_rate` (0: as fast as it reads).
+struct BagInput {
+    bag: Bag,
+    topic: String,
+    rate: f64,
+}
+
+impl BagInput {
+    fn open(node: &Node, path: &Path) -> Result<BagInput, NodeError> {
+        let bad = |reason: String| NodeError::Parameter { name: "bag".into(), reason };
+        let bag = Bag::open(path).map_err(|e| bad(e.to_string()))?;
+        let topic = match node.param::<Option<String>>("bag_topic", None)? {
+            Some(topic) => topic,
+            None => only_image_topic(&bag).map_err(|e| bad(format!("{e} (parameter bag_topic)")))?,
+        };
+        let rate: f64 = node.param("bag_rate", 1.0)?;
+        if !(rate.is_finite() && rate >= 0.0) {
+            return Err(NodeError::Parameter { name: "bag_rate".into(), reason: format!("{rate} is not 0 or more") });
+        }
+        Ok(BagInput { bag, topic, rate })
+    }
+}
+
+/// Takes in a bag's frames, camera info, odometry and visit markers, in the bag's order, as they
+/// would come over the topics (a stop request ends it early).
+async fn read_bag(
+    node: &Node,
+    out: &mut Outputs,
+    ingest: &mut Ingest,
+    camera: &mut Camera,
+    input: &BagInput,
+) -> Result<(), NodeError> {
+    let bag_path = input.bag.path().display().to_string();
+    node.log(LogLevel::Info, &format!("reading {bag_path} ({})", input.topic));
+    let started = Instant::now();
+    let mut first_ns = None;
+    for message in input.bag.messages() {
+        if node.stopping() {
+            break;
+        }
+        let message = match message {
+            Ok(message) => message,
+            Err(error @ revisit_bag::BagError::BadMessage { .. }) => {
+                node.log(LogLevel::Warn, &format!("skipped: {error}"));
+                continue;
+            }
+            Err(error) => return Err(NodeError::Work(error.to_string())),
+        };
+        let type_name = message.topic.type_name.as_str();
+        let decoded = if message.topic.name == input.topic {
+            Input::Frame(frame_of(&message).map_err(|why| format!("{bag_path} at {} ns: {why}", message.log_time_ns)))
+        } else if type_name == CameraInfo::DEFINITION.name {
+            decode(&message).map(|info| Input::CameraInfo(Box::new(info)))?
+        } else if type_name == Odometry::DEFINITION.name {
+            decode(&message).map(|odometry| Input::Odometry(Box::new(odometry)))?
+        } else if message.topic.name == SESSION_TOPIC {
+            decode(&message).map(Input::Control)?
+        } else {
+            continue;
+        };
+        if input.rate > 0.0 {
+            let first = *first_ns.get_or_insert(message.log_time_ns);
+            let due = started + Duration::from_secs_f64((message.log_time_ns - first) as f64 * 1e-9 / input.rate);
+            tokio::time::sleep_until(due.into()).await;
+        }
+        take(node, out, ingest, camera, decoded).await?;
+    }
+    node.log(LogLevel::Info, &format!("read {bag_path}"));
+    Ok(())
+}
+
+/// A bag message decoded, or an error naming the bag, topic and time.
+fn decode<M: revisit_msgs::Message>(message: &revisit_bag::RawMessage) -> Result<M, NodeError> {
+    revisit_msgs::decode(&message.data)
+        .map_err(|e| NodeError::Work(format!("topic {} at {} ns: {e}", message.topic.name, message.log_time_ns)))
 }
 
 /// Frames outside a visit kept, when visits are named by session control, in case their visit's

@@ -55,23 +55,27 @@ fn sliding_bag(dir: &std::path::Path) -> Bag {
     Bag::open(&writer.finish().unwrap().dir).unwrap()
 }
 
-#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
-async fn played_bag_gives_the_offline_keyframes() {
-    let dir = tempfile::tempdir().unwrap();
-    let bag = sliding_bag(dir.path());
+/// The keyframes `reconstruct --bag` keeps from `bag`, by file name.
+fn offline_keyframes(dir: &std::path::Path, bag: &Bag) -> Vec<String> {
     let spec = SessionSpec { name: "a".into(), dir: bag.path().to_owned() };
-    let offline =
-        ingest(&spec, &IngestOptions::default(), &dir.path().join("offline"), &Silent, &Cancel::new()).unwrap();
+    let offline = ingest(&spec, &IngestOptions::default(), &dir.join("offline"), &Silent, &Cancel::new()).unwrap();
     let mut expected: Vec<String> = std::fs::read_dir(&offline.visits[0].dir)
         .unwrap()
         .map(|e| e.unwrap().file_name().into_string().unwrap())
         .collect();
     expected.sort();
     assert!(expected.len() > 3 && expected.len() < 24, "the selection should keep some frames: {expected:?}");
+    expected
+}
 
-    let domain = Domain { id: 43, localhost_only: true };
-    let words = ["-r", "image/compressed:=/camera/image_raw/compressed"].map(String::from);
-    let mut ingest_node = Node::start_in(domain, revisit_ingest_node::NAME, &RosArgs::parse(&words).unwrap()).unwrap();
+/// Runs the ingest node (`words`: its ROS arguments) in `domain` while `feed` runs, and returns the
+/// keyframe names (sorted) and visit markers it published, up to the END.
+async fn ingest_node_hears(
+    domain: Domain,
+    words: &[String],
+    feed: impl AsyncFnOnce(),
+) -> (Vec<String>, Vec<(u8, String)>) {
+    let mut ingest_node = Node::start_in(domain, revisit_ingest_node::NAME, &RosArgs::parse(words).unwrap()).unwrap();
     let mut listener = Node::start_in(domain, "listener", &RosArgs::default()).unwrap();
     let keyframes = listener.subscription::<Keyframe>("/keyframes", WORK_QUEUE).unwrap();
     let visits = listener.subscription::<SessionControl>("/visits", WORK_QUEUE).unwrap();
@@ -79,9 +83,7 @@ async fn played_bag_gives_the_offline_keyframes() {
         let summary = revisit_ingest_node::run(&mut ingest_node).await;
         (ingest_node, summary)
     });
-    let mut player = Node::start_in(domain, "player", &RosArgs::default()).unwrap();
-    let options = PlayOptions { wait_for_subscribers: true, ..Default::default() };
-    play(&mut player, &bag, &options, &|_, _| {}).await.unwrap();
+    feed().await;
 
     let mut names = Vec::new();
     let mut keyframes = std::pin::pin!(keyframes.async_stream());
@@ -105,13 +107,47 @@ async fn played_bag_gives_the_offline_keyframes() {
     })
     .await;
     assert!(collected.is_ok(), "no END within 30 s; keyframes so far {names:?}, visits {said:?}");
-    assert_eq!(said, [(SessionControl::START, "a".to_owned()), (SessionControl::END, "a".to_owned())]);
+    running.abort();
+    listener.shutdown().await;
     names.sort();
+    (names, said)
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn played_bag_gives_the_offline_keyframes() {
+    let dir = tempfile::tempdir().unwrap();
+    let bag = sliding_bag(dir.path());
+    let expected = offline_keyframes(dir.path(), &bag);
+    let domain = Domain { id: 43, localhost_only: true };
+    let words = ["-r", "image/compressed:=/camera/image_raw/compressed"].map(String::from);
+    let (names, said) = ingest_node_hears(domain, &words, async || {
+        let mut player = Node::start_in(domain, "player", &RosArgs::default()).unwrap();
+        let options = PlayOptions { wait_for_subscribers: true, ..Default::default() };
+        play(&mut player, &bag, &options, &|_, _| {}).await.unwrap();
+        player.shutdown().await;
+    })
+    .await;
+    assert_eq!(said, [(SessionControl::START, "a".to_owned()), (SessionControl::END, "a".to_owned())]);
+    assert_eq!(names, expected);
+}
+
+/// The same bag given to the node as its `bag` parameter: the same keyframes.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_bag_given_as_a_parameter_gives_the_offline_keyframes() {
+    let dir = tempfile::tempdir().unwrap();
+    let bag = sliding_bag(dir.path());
+    let expected = offline_keyframes(dir.path(), &bag);
+    let domain = Domain { id: 45, localhost_only: true };
+    let words = ["-p".into(), format!("bag:={}", bag.path().display()), "-p".into(), "bag_rate:=0".into()];
+    let (names, said) = ingest_node_hears(domain, &words, async || {}).await;
+    assert_eq!(said, [(SessionControl::START, "a".to_owned()), (SessionControl::END, "a".to_owned())]);
     assert_eq!(names, expected);
 
-    running.abort();
-    player.shutdown().await;
-    listener.shutdown().await;
+    // A bag that is not one is named, before anything starts.
+    let words = ["-p".into(), format!("bag:={}", dir.path().join("missing").display())];
+    let node = Node::start_in(domain, revisit_ingest_node::NAME, &RosArgs::parse(&words).unwrap());
+    let error = revisit_ingest_node::run(&mut node.unwrap()).await.unwrap_err().to_string();
+    assert!(error.starts_with("parameter bag:") && error.contains("missing"), "{error}");
 }
 
 /// A frame that comes before its visit's START (topics are not ordered with each other) but is
