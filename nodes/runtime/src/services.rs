@@ -39,16 +39,20 @@ impl<S: Service> Server<S> {
 }
 
 /// A caller of a service.
-pub struct Client<S: Service>(ros2_client::Client<Wire<S::Request>, Wire<S::Response>>);
+pub struct Client<S: Service> {
+    client: ros2_client::Client<Wire<S::Request>, Wire<S::Response>>,
+    /// The service's resolved name.
+    name: String,
+}
 
 impl<S: Service> Client<S> {
     /// Waits up to `timeout` for a server, sends `request`, and waits (as long as the server
     /// works on it) for the response.
     pub async fn call(&self, node: &Node, request: S::Request, timeout: Duration) -> Result<S::Response, NodeError> {
-        tokio::time::timeout(timeout, self.0.wait_for_service(node.ros()))
-            .await
-            .map_err(|_| NodeError::Dds(format!("no server of {} answered within {timeout:?}", S::NAME)))?;
-        let Wire(response) = self.0.async_call_service(Wire(request)).await.map_err(dds)?;
+        tokio::time::timeout(timeout, self.client.wait_for_service(node.ros())).await.map_err(|_| {
+            NodeError::Dds(format!("no server of {} ({}) appeared within {timeout:?}", self.name, S::NAME))
+        })?;
+        let Wire(response) = self.client.async_call_service(Wire(request)).await.map_err(dds)?;
         Ok(response)
     }
 }
@@ -64,9 +68,9 @@ impl Node {
 
     /// A client of service `S` named `name`.
     pub fn client<S: Service>(&mut self, name: &str) -> Result<Client<S>, NodeError> {
-        let (name, type_name) = self.service_names::<S>(name)?;
-        let client = self.ros_mut().create_client(ServiceMapping::Enhanced, &name, &type_name, RELIABLE, RELIABLE);
-        Ok(Client(client.map_err(dds)?))
+        let (resolved, type_name) = self.service_names::<S>(name)?;
+        let client = self.ros_mut().create_client(ServiceMapping::Enhanced, &resolved, &type_name, RELIABLE, RELIABLE);
+        Ok(Client { client: client.map_err(dds)?, name: self.names().resolve(name)? })
     }
 
     fn service_names<S: Service>(&self, name: &str) -> Result<(Name, ServiceTypeName), NodeError> {
