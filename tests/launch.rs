@@ -81,7 +81,8 @@ fn the_launched_graph_ingests_a_played_bag_respawns_and_stops_on_ctrl_c() {
 
     let recorded = dir.path().join("recorded");
     let recorder = revisit_in_domain()
-        .args(["bag", "record", "/keyframes", "/visits", "--duration", "15", "--out"])
+        // Long enough for the visit's END on a loaded machine (its keyframes wait for odometry).
+        .args(["bag", "record", "/keyframes", "/visits", "--duration", "40", "--out"])
         .arg(&recorded)
         .stdout(Stdio::null())
         .stderr(Stdio::null())
