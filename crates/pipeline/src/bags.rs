@@ -569,7 +569,7 @@ pub fn only_image_topic(bag: &Bag) -> Result<String, PipelineError> {
         [topic] => Ok(topic.to_owned()),
         [] => Err(PipelineError::Bag(format!("{}: no image topic", bag.path().display()))),
         _ => Err(PipelineError::Bag(format!(
-            "{}: several image topics ({}); name the one to read",
+            "{}: several image topics ({}); choose one with --topic",
             bag.path().display(),
             images.join(", ")
         ))),
