@@ -32,7 +32,8 @@ fn record_path(work: &Path) -> PathBuf {
     work.join("mapping.json")
 }
 
-fn io(path: &Path) -> impl FnOnce(std::io::Error) -> PipelineError + '_ {
+/// An I/O error on `path`, as the pipeline reports it.
+pub(crate) fn io(path: &Path) -> impl FnOnce(std::io::Error) -> PipelineError + '_ {
     move |source| PipelineError::Io { path: path.to_path_buf(), source }
 }
 

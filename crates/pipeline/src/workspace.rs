@@ -15,7 +15,7 @@ use crate::export;
 use crate::ingest::SessionImages;
 use crate::learned::Learned;
 use crate::locate::Tools;
-use crate::mapping::{self, MappingOutcome};
+use crate::mapping::{self, io, MappingOutcome};
 use crate::messages::FeaturesRecord;
 use crate::options::{CameraSpec, ReconstructOptions};
 use crate::report::{CameraReport, CrossReport, MappingReport, Report};
@@ -435,10 +435,6 @@ impl Workspace {
     /// report's model path pointing at the copy. Everything is written beside, in `to/.saving`,
     /// then moved into place: a failed save leaves what `to` held. Returns the names written.
     pub fn save_outputs(&self, to: &Path) -> Result<Vec<String>, PipelineError> {
-        let io = |path: &Path| {
-            let path = path.to_path_buf();
-            move |source| PipelineError::Io { path, source }
-        };
         let mut report = Report::read(&self.dir.join("report.json"))?;
         std::fs::create_dir_all(to).map_err(io(to))?;
         let to = std::fs::canonicalize(to).map_err(io(to))?;
@@ -523,10 +519,6 @@ fn initial_camera(
 /// `WORK/images/<session>` links to the session's folder, so that COLMAP
 /// finds `session/file` under one root.
 fn link_images(work: &Path, session: &str, dir: &Path) -> Result<(), PipelineError> {
-    let io = |path: &Path| {
-        let path = path.to_path_buf();
-        move |source| PipelineError::Io { path, source }
-    };
     let root = work.join("images");
     std::fs::create_dir_all(&root).map_err(io(&root))?;
     let link = root.join(session);
@@ -541,10 +533,6 @@ fn link_images(work: &Path, session: &str, dir: &Path) -> Result<(), PipelineErr
 
 /// Copies a folder tree (files and folders; a COLMAP model is no deeper than that).
 fn copy_dir(from: &Path, to: &Path) -> Result<(), PipelineError> {
-    let io = |path: &Path| {
-        let path = path.to_path_buf();
-        move |source| PipelineError::Io { path, source }
-    };
     std::fs::create_dir_all(to).map_err(io(to))?;
     for entry in std::fs::read_dir(from).map_err(io(from))? {
         let path = entry.map_err(io(from))?.path();
