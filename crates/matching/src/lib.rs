@@ -5,6 +5,7 @@
 //! in features and get matches and two-view geometries back.
 
 mod anchor;
+pub mod consistency;
 pub mod cross;
 mod descriptors;
 pub mod lightglue;
@@ -13,6 +14,7 @@ pub mod roll;
 mod verify;
 
 pub use anchor::anchor_keypoints;
+pub use consistency::{check_cross_pairs, turn, CheckedPair, Turn, Verdict, DEFAULT_CONSISTENCY_TOLERANCE_DEG};
 pub use cross::{match_learned_pair, CrossOptions, LearnedPairMatch, CROSS_MIN_INLIERS};
 pub use descriptors::{match_descriptors, match_unit_descriptors, MatchOptions};
 pub use lightglue::LightGlue;
