@@ -8,17 +8,21 @@
 //!   to the true location: per session pair and overall.
 //! - [`parse_truth_poses_csv`] and [`score_truth`] measure registration rates
 //!   and camera errors after a similarity alignment ([`umeyama`], from `revisit-core`).
+//! - [`median_epipolar_error_px`] tells a right pair from a wrong one by the
+//!   true poses.
 //! - [`histogram`] draws the error histogram of a session pair.
 //!
 //! Invariant: pure functions over models and texts; no file I/O (the CLI reads
 //! models and writes reports and images).
 
 mod clicks;
+mod pairs;
 mod plot;
 mod score;
 mod truth;
 
 pub use clicks::{parse_points_csv, write_points_csv, ClickPair, MalformedRow, PointsCsv};
+pub use pairs::{median_epipolar_error_px, MAX_RIGHT_PAIR_ERROR_PX};
 pub use plot::{histogram, HistogramOptions};
 pub use revisit_core::{umeyama, AlignError, Similarity};
 pub use score::{score, ClickResult, ScoreOptions, Scores, SkipReason, Summary};

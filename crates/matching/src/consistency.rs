@@ -110,6 +110,15 @@ impl Verdict {
     }
 }
 
+/// The heading offset between two visits that one cross-visit pair implies.
+struct Offset {
+    /// Into the pairs checked.
+    index: usize,
+    deg: f64,
+    /// The pair's inliers.
+    weight: f64,
+}
+
 /// The verdict on every cross-visit pair of `pairs` (in their order; pairs
 /// within a visit are the chains). `visit_of` gives each image's visit (its
 /// place in the order of visits); an image without one is not checked.
@@ -119,8 +128,8 @@ pub fn check_cross_pairs(
     tolerance_deg: f64,
 ) -> Vec<(usize, Verdict)> {
     let headings = headings(pairs, visit_of);
-    // (earlier part, later part) -> (pair index, offset, weight)
-    let mut groups: BTreeMap<(ImageId, ImageId), Vec<(usize, f64, f64)>> = BTreeMap::new();
+    // (earlier part, later part) -> the offsets their pairs imply.
+    let mut groups: BTreeMap<(ImageId, ImageId), Vec<Offset>> = BTreeMap::new();
     let mut verdicts = Vec::new();
     for (index, pair) in pairs.iter().enumerate() {
         if pair.kind != PairKind::Cross {
@@ -143,22 +152,20 @@ pub fn check_cross_pairs(
             continue;
         };
         let offset = wrap(turn_deg - (heading_l - heading_e));
-        groups.entry((root_e, root_l)).or_default().push((index, offset, pair.inliers as f64));
+        groups.entry((root_e, root_l)).or_default().push(Offset { index, deg: offset, weight: pair.inliers as f64 });
         verdicts.push((index, Verdict::Consistent));
     }
     for members in groups.values() {
-        let offsets: Vec<f64> = members.iter().map(|m| m.1).collect();
-        let weights: Vec<f64> = members.iter().map(|m| m.2).collect();
+        let offsets: Vec<f64> = members.iter().map(|m| m.deg).collect();
+        let weights: Vec<f64> = members.iter().map(|m| m.weight).collect();
         let (consensus, support) = mode(&offsets, &weights, tolerance_deg);
         let supporters = offsets.iter().filter(|o| angle_between(**o, consensus) <= tolerance_deg).count();
         if supporters < 2 || support <= 0.5 * weights.iter().sum::<f64>() {
             continue; // no consensus to hold the pairs to
         }
-        for &(index, offset, _) in members {
-            if angle_between(offset, consensus) > tolerance_deg {
-                if let Some(v) = verdicts.iter_mut().find(|(i, _)| *i == index) {
-                    v.1 = Verdict::OffConsensus { offset_deg: offset, consensus_deg: consensus };
-                }
+        for member in members.iter().filter(|m| angle_between(m.deg, consensus) > tolerance_deg) {
+            if let Some(v) = verdicts.iter_mut().find(|(i, _)| *i == member.index) {
+                v.1 = Verdict::OffConsensus { offset_deg: member.deg, consensus_deg: consensus };
             }
         }
     }
@@ -206,8 +213,8 @@ fn headings(pairs: &[CheckedPair], visit_of: &BTreeMap<ImageId, usize>) -> BTree
         while let Some(at) = stack.pop() {
             let heading = headings[&at].1;
             for &(next, turn_deg) in edges.get(&at).into_iter().flatten() {
-                if !headings.contains_key(&next) {
-                    headings.insert(next, (root, wrap(heading + turn_deg)));
+                if let std::collections::btree_map::Entry::Vacant(entry) = headings.entry(next) {
+                    entry.insert((root, wrap(heading + turn_deg)));
                     stack.push(next);
                 }
             }

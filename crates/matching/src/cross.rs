@@ -18,6 +18,7 @@ use revisit_core::{CrossKey, Keypoint, LearnedFeatures, PairKind, Roll, TwoViewG
 use revisit_onnx::OnnxError;
 use serde::{Deserialize, Serialize};
 
+use crate::consistency::DEFAULT_CONSISTENCY_TOLERANCE_DEG;
 use crate::roll::{match_with_rolls, unrolled_keypoints, CrossMatch, RollSearch, DEFAULT_ROLL_MARGIN};
 use crate::verify::{verify, VerifyOptions};
 use crate::{anchor_keypoints, check_range, LightGlue, OptionsError};
@@ -47,6 +48,12 @@ pub struct CrossOptions {
     pub anchor_radius_px: f32,
     /// Verification; default asks for [`CROSS_MIN_INLIERS`] inliers.
     pub verify: VerifyOptions,
+    /// Verified cross-visit pairs are checked against their roll and against
+    /// each other before mapping ([`crate::consistency`]): a pair whose heading
+    /// offset between its visits is further than this from the other pairs'
+    /// is set aside. `None` checks nothing. Default
+    /// [`DEFAULT_CONSISTENCY_TOLERANCE_DEG`].
+    pub consistency_tolerance_deg: Option<f64>,
 }
 
 impl Default for CrossOptions {
@@ -56,6 +63,7 @@ impl Default for CrossOptions {
             roll_margin: DEFAULT_ROLL_MARGIN,
             anchor_radius_px: DEFAULT_ANCHOR_RADIUS_PX,
             verify: VerifyOptions { min_inliers: CROSS_MIN_INLIERS, ..VerifyOptions::default() },
+            consistency_tolerance_deg: Some(DEFAULT_CONSISTENCY_TOLERANCE_DEG),
         }
     }
 }
@@ -65,6 +73,9 @@ impl CrossOptions {
         self.roll_search.check()?;
         check_range("roll_margin", self.roll_margin, 1.0, f32::MAX, "at least 1")?;
         check_range("anchor_radius_px", self.anchor_radius_px, 0.0, 100.0, "in [0, 100]")?;
+        if let Some(tolerance) = self.consistency_tolerance_deg {
+            check_range("consistency_tolerance_deg", tolerance, 1.0, 180.0, "in [1, 180]")?;
+        }
         self.verify.check()
     }
 }

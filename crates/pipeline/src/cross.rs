@@ -10,9 +10,11 @@ use std::collections::{BTreeMap, BTreeSet};
 use std::path::Path;
 
 use revisit_core::{pair_id, ImageId, LearnedFeatures, PairKind, Roll};
+use revisit_matching::consistency::{self, CheckedPair, Verdict};
 use revisit_matching::{match_learned_pair, CrossOptions, LearnedPairMatch, RollSearch};
 use revisit_places::{nearest, Candidate, CandidateOptions, GlobalDescriptor, OnnxPlaces, Vlad, Vocabulary};
 use revisit_store::{CrossSide, PairRecord, Store};
+use serde::{Deserialize, Serialize};
 
 use crate::learned::Learned;
 use crate::options::{CrossStrategy, PlaceSource};
@@ -358,5 +360,92 @@ pub fn match_learned_pairs(
         progress.advance();
     }
     progress.finish();
+    Ok(counts)
+}
+
+/// What [`check_consistency`] found among the verified cross-visit pairs.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ConsistencyCounts {
+    /// Verified cross-visit pairs checked.
+    pub checked: usize,
+    /// Set aside: matched at a roll their matches do not show.
+    pub roll_disagrees: usize,
+    /// Set aside: their visits' other pairs agree on another heading offset.
+    pub off_consensus: usize,
+}
+
+/// Checks every verified cross-visit pair of `sessions` against its roll and
+/// against the other pairs ([`revisit_matching::consistency`]), sets aside
+/// the pairs that fail (COLMAP does not see them; the store keeps them), and
+/// puts back pairs set aside before that pass now (a visit added since can
+/// settle a consensus). Deterministic: the same store gives the same verdicts.
+pub fn check_consistency(
+    store: &mut Store,
+    sessions: &[Session],
+    tolerance_deg: f64,
+) -> Result<ConsistencyCounts, PipelineError> {
+    let visit_of: BTreeMap<ImageId, usize> =
+        sessions.iter().enumerate().flat_map(|(v, s)| s.images.iter().map(move |i| (i.id, v))).collect();
+    let names: BTreeMap<ImageId, String> =
+        sessions.iter().flat_map(|s| &s.images).map(|i| (i.id, i.name.to_string())).collect();
+    let mut keypoints: BTreeMap<ImageId, Vec<[f64; 2]>> = BTreeMap::new();
+    let mut checked = Vec::new();
+    for record in store.pair_records()? {
+        let (a, b) = (record.image_id1, record.image_id2);
+        if record.num_inliers == 0 || !visit_of.contains_key(&a) || !visit_of.contains_key(&b) {
+            continue;
+        }
+        for id in [a, b] {
+            if let std::collections::btree_map::Entry::Vacant(entry) = keypoints.entry(id) {
+                entry.insert(store.read_keypoints(id)?.iter().map(|k| [f64::from(k.x), f64::from(k.y)]).collect());
+            }
+        }
+        let matches = store.verified_matches(pair_id(a, b))?;
+        let at = |id: ImageId, side: usize| -> Vec<[f64; 2]> {
+            matches.iter().filter_map(|m| keypoints[&id].get(m[side] as usize).copied()).collect()
+        };
+        let Some(turn) = consistency::turn(&at(a, 0), &at(b, 1)) else { continue };
+        // SIFT is matched at roll 0 whatever the turn: only a learned pair has a roll to agree with.
+        let roll = match record.kind == PairKind::Cross && record.method != "sift" {
+            true => u32::try_from(record.roll_deg).ok().and_then(Roll::from_degrees),
+            false => None,
+        };
+        checked.push(CheckedPair {
+            image_id1: a,
+            image_id2: b,
+            kind: record.kind,
+            turn,
+            inliers: record.num_inliers,
+            roll,
+        });
+    }
+    let verdicts = consistency::check_cross_pairs(&checked, &visit_of, tolerance_deg);
+    let aside = store.set_aside_pairs()?;
+    let mut counts = ConsistencyCounts { checked: verdicts.len(), ..ConsistencyCounts::default() };
+    for (index, verdict) in verdicts {
+        let pair = &checked[index];
+        let id = pair_id(pair.image_id1, pair.image_id2);
+        let reason = match verdict {
+            Verdict::Consistent => {
+                if aside.contains_key(&id) {
+                    store.restore_set_aside(id)?;
+                }
+                continue;
+            }
+            Verdict::RollDisagrees { turn_deg, roll } => {
+                counts.roll_disagrees += 1;
+                format!("matched at roll {}, but its matches turn the image by {turn_deg:.0} deg", roll.degrees())
+            }
+            Verdict::OffConsensus { offset_deg, consensus_deg } => {
+                counts.off_consensus += 1;
+                format!("heading offset {offset_deg:.0} deg between the visits; their other pairs agree on {consensus_deg:.0}")
+            }
+        };
+        tracing::warn!("cross-visit pair {} - {} set aside: {reason}", names[&pair.image_id1], names[&pair.image_id2]);
+        if !aside.contains_key(&id) {
+            store.set_aside(id, &reason)?;
+        }
+    }
     Ok(counts)
 }

@@ -8,6 +8,7 @@ use std::path::{Path, PathBuf};
 use revisit_core::{CameraId, PairKind};
 use serde::{Deserialize, Serialize};
 
+use crate::cross::ConsistencyCounts;
 use crate::options::ReconstructOptions;
 use crate::{PipelineError, StageCounts};
 
@@ -83,6 +84,8 @@ pub struct CrossReport {
     pub learned_features: Option<StageCounts>,
     pub places: Option<StageCounts>,
     pub learned_matching: Option<StageCounts>,
+    /// Verified cross-visit pairs checked against their rolls and each other before mapping.
+    pub consistency: Option<ConsistencyCounts>,
 }
 
 /// The mapping stage.

@@ -300,6 +300,13 @@ impl Workspace {
                 self.match_learned(learned, places.as_ref(), progress, cancel)
             })?);
         }
+        if let (Some(tolerance), true) =
+            (self.options.learned_matching.consistency_tolerance_deg, self.sessions.len() >= 2)
+        {
+            cross_report.consistency = Some(timed(&mut seconds, "consistency", || {
+                cross::check_consistency(&mut self.store, &self.sessions, tolerance)
+            })?);
+        }
         let outcome = timed(&mut seconds, "mapping", || self.map(cancel))?;
         let chosen = export::chosen_model(&outcome.models, &self.sessions);
         timed(&mut seconds, "export", || self.export(&outcome, chosen))?;
@@ -416,10 +423,12 @@ impl Workspace {
             .collect();
         let inputs = {
             let inliers: usize = records.iter().map(|r| r.num_inliers).sum();
+            let aside: Vec<u64> = self.store.set_aside_pairs()?.into_keys().collect();
             let names: Vec<String> = self.sessions.iter().flat_map(|s| &s.images).map(|i| i.name.to_string()).collect();
             let cameras: Vec<&Camera> = self.sessions.iter().flat_map(|s| s.cameras.values()).collect();
             format!(
-                "{} images {names:?}; cameras {cameras:?}, constant {constant:?}; {} pairs, {inliers} inliers; {:?}",
+                "{} images {names:?}; cameras {cameras:?}, constant {constant:?}; {} pairs, {inliers} inliers, \
+                 set aside {aside:?}; {:?}",
                 names.len(),
                 records.len(),
                 self.options.mapper

@@ -392,6 +392,68 @@ impl Store {
         rows.collect::<std::result::Result<_, _>>().map_err(|e| self.sql(e))
     }
 
+    /// Sets a verified pair's two-view geometry aside (COLMAP no longer sees
+    /// it), with the reason; its matches and record stay. One transaction.
+    pub fn set_aside(&mut self, pair: u64, reason: &str) -> Result<()> {
+        self.move_geometry(
+            "INSERT OR REPLACE INTO revisit_set_aside \
+             SELECT pair_id, ?2, rows, cols, data, config, F, E, H, qvec, tvec FROM two_view_geometries WHERE pair_id = ?1",
+            params![pair as i64, reason],
+            "DELETE FROM two_view_geometries WHERE pair_id = ?1",
+            pair,
+        )
+    }
+
+    /// Puts a pair set aside back where COLMAP reads it. One transaction.
+    pub fn restore_set_aside(&mut self, pair: u64) -> Result<()> {
+        self.move_geometry(
+            "INSERT OR REPLACE INTO two_view_geometries \
+             SELECT pair_id, rows, cols, data, config, F, E, H, qvec, tvec FROM revisit_set_aside WHERE pair_id = ?1",
+            params![pair as i64],
+            "DELETE FROM revisit_set_aside WHERE pair_id = ?1",
+            pair,
+        )
+    }
+
+    /// Runs `copy` (with `copy_params`), then `delete` (with `pair`), in one transaction.
+    fn move_geometry(
+        &mut self,
+        copy: &str,
+        copy_params: &[&dyn rusqlite::ToSql],
+        delete: &str,
+        pair: u64,
+    ) -> Result<()> {
+        let path = self.path.clone();
+        let sql = |source| StoreError::Sqlite { path: path.clone(), source };
+        let tx = self.conn.transaction().map_err(sql)?;
+        tx.execute(copy, copy_params).map_err(sql)?;
+        tx.execute(delete, params![pair as i64]).map_err(sql)?;
+        tx.commit().map_err(sql)
+    }
+
+    /// The pairs set aside, with their reasons.
+    pub fn set_aside_pairs(&self) -> Result<BTreeMap<u64, String>> {
+        let mut stmt = self.conn.prepare("SELECT pair_id, reason FROM revisit_set_aside").map_err(|e| self.sql(e))?;
+        let rows = stmt.query_map([], |r| Ok((r.get::<_, i64>(0)? as u64, r.get(1)?))).map_err(|e| self.sql(e))?;
+        rows.collect::<std::result::Result<_, _>>().map_err(|e| self.sql(e))
+    }
+
+    /// The verified inlier matches of a pair, indexed (smaller id, larger id),
+    /// whether COLMAP sees them or they were set aside.
+    pub fn verified_matches(&self, pair: u64) -> Result<Vec<[u32; 2]>> {
+        if let Some((_, matches)) = self.two_view_geometry(pair)? {
+            return Ok(matches);
+        }
+        let data: Option<Option<Vec<u8>>> = self
+            .conn
+            .query_row("SELECT data FROM revisit_set_aside WHERE pair_id = ?1", [pair as i64], |r| r.get(0))
+            .optional()
+            .map_err(|e| self.sql(e))?;
+        let values = blob::to_u32s(&data.flatten().unwrap_or_default())
+            .ok_or_else(|| self.corrupt(format!("set-aside geometry of pair {pair}"), "blob length"))?;
+        Ok(values.chunks_exact(2).map(|c| [c[0], c[1]]).collect())
+    }
+
     /// The verified inlier matches of a pair, indexed (smaller id, larger id).
     pub fn two_view_geometry(&self, pair: u64) -> Result<Option<(TwoViewConfig, Vec<[u32; 2]>)>> {
         let (a, b) = pair_from_id(pair);
@@ -443,6 +505,8 @@ fn insert_pair(
             pose.map(|p| blob::f64s(p.translation.as_slice())),
         ],
     )?;
+    // A pair matched again is judged afresh.
+    tx.execute("DELETE FROM revisit_set_aside WHERE pair_id = ?1", [id as i64])?;
     tx.execute(
         "INSERT OR REPLACE INTO revisit_pairs (pair_id, image_id1, image_id2, kind, method, roll_deg, \
          num_matches, num_inliers) VALUES (?1, ?2, ?3, ?4, ?5, ?6, ?7, ?8)",

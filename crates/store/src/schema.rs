@@ -64,6 +64,18 @@ CREATE TABLE IF NOT EXISTS revisit_pairs (
     roll_deg INTEGER NOT NULL,
     num_matches INTEGER NOT NULL,
     num_inliers INTEGER NOT NULL);
+CREATE TABLE IF NOT EXISTS revisit_set_aside (
+    pair_id INTEGER PRIMARY KEY NOT NULL,
+    reason TEXT NOT NULL,
+    rows INTEGER NOT NULL,
+    cols INTEGER NOT NULL,
+    data BLOB,
+    config INTEGER NOT NULL,
+    F BLOB,
+    E BLOB,
+    H BLOB,
+    qvec BLOB,
+    tvec BLOB);
 CREATE TABLE IF NOT EXISTS revisit_learned_features (
     image_id INTEGER NOT NULL REFERENCES images(image_id) ON DELETE CASCADE,
     method TEXT NOT NULL,

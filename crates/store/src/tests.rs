@@ -120,4 +120,18 @@ fn pairs_are_stored_in_colmap_order() {
     assert_eq!(config, TwoViewConfig::Uncalibrated);
     assert_eq!(inliers, vec![[1, 4]]);
     assert_eq!(store.pair_records().unwrap()[0].image_id1, a.min(b));
+
+    // Set aside, COLMAP no longer sees the pair; its inliers are kept and come back whole.
+    store.set_aside(pair, "off consensus").unwrap();
+    assert_eq!(store.two_view_geometry(pair).unwrap(), None);
+    assert_eq!(store.verified_matches(pair).unwrap(), vec![[1, 4]]);
+    assert_eq!(store.set_aside_pairs().unwrap(), BTreeMap::from([(pair, "off consensus".to_owned())]));
+    store.restore_set_aside(pair).unwrap();
+    assert_eq!(store.two_view_geometry(pair).unwrap(), Some((TwoViewConfig::Uncalibrated, vec![[1, 4]])));
+    assert!(store.set_aside_pairs().unwrap().is_empty());
+    // A pair matched again is judged afresh: nothing of it stays aside.
+    store.set_aside(pair, "off consensus").unwrap();
+    store.write_pair(&record, &[[4, 1], [5, 2]], &geometry).unwrap();
+    assert!(store.set_aside_pairs().unwrap().is_empty());
+    assert!(store.two_view_geometry(pair).unwrap().is_some());
 }

@@ -14,7 +14,7 @@ use std::time::Instant;
 
 use anyhow::{ensure, Context, Result};
 use revisit_core::{session_of, ImageId, PairKind, Roll};
-use revisit_eval::{parse_points_csv, score, ScoreOptions};
+use revisit_eval::{median_epipolar_error_px, parse_points_csv, score, ScoreOptions, MAX_RIGHT_PAIR_ERROR_PX};
 use revisit_matching::{CrossOptions, RollSearch};
 use revisit_pipeline::ingest::{scan_session, SessionSpec};
 use revisit_pipeline::learned::LearnedMethod;
@@ -36,6 +36,8 @@ const MAX_VPR_TIME_SHARE: f64 = 0.10;
 const MAX_ROLL_COST: f64 = 1.5;
 /// The goal: the probe picks the full search's roll on this share of pairs.
 const MIN_ROLL_AGREEMENT: f64 = 0.95;
+/// A mapped pair this far off its epipolar lines (median, pixels) shows another place.
+const FAR_WRONG_PAIR_ERROR_PX: f64 = 20.0;
 
 #[derive(clap::Args)]
 pub struct Args {
@@ -75,6 +77,13 @@ struct StrategyFigures {
     pairs_matched: usize,
     cross_pairs_matched: usize,
     cross_pairs_verified: usize,
+    /// Verified cross-visit pairs set aside by the consistency check.
+    cross_pairs_set_aside: usize,
+    /// Verified cross-visit pairs COLMAP maps with, and how many of them are
+    /// wrong by the truth (median epipolar error over 4 px; over 20 px).
+    cross_pairs_mapped: usize,
+    wrong_cross_pairs_mapped: usize,
+    far_wrong_cross_pairs_mapped: usize,
     cross_inliers: usize,
     sessions: usize,
     sessions_in_chosen_model: usize,
@@ -209,6 +218,8 @@ fn strategy_figures(name: &str, report: &Report, out: &Path, truth: &Path) -> Re
         Some(model) => cross_error(model, truth)?,
         None => (None, 0),
     };
+    let errors = mapped_pair_errors(&store, truth)?;
+    let wrong_over = |px: f64| errors.iter().filter(|e| **e > px).count();
     Ok(StrategyFigures {
         strategy: name.to_owned(),
         matching_secs: secs("matching") + secs("places") + secs("learned_matching"),
@@ -216,6 +227,10 @@ fn strategy_figures(name: &str, report: &Report, out: &Path, truth: &Path) -> Re
         pairs_matched: records.len(),
         cross_pairs_matched: cross.len(),
         cross_pairs_verified: cross.iter().filter(|r| r.num_inliers > 0).count(),
+        cross_pairs_set_aside: store.set_aside_pairs()?.len(),
+        cross_pairs_mapped: errors.len(),
+        wrong_cross_pairs_mapped: wrong_over(MAX_RIGHT_PAIR_ERROR_PX),
+        far_wrong_cross_pairs_mapped: wrong_over(FAR_WRONG_PAIR_ERROR_PX),
         cross_inliers: cross.iter().map(|r| r.num_inliers).sum(),
         sessions: report.sessions.len(),
         sessions_in_chosen_model: report.sessions.values().filter(|s| s.registered > 0).count(),
@@ -223,6 +238,39 @@ fn strategy_figures(name: &str, report: &Report, out: &Path, truth: &Path) -> Re
         median_cross_error_px: median,
         clicks_scored: scored,
     })
+}
+
+/// The median epipolar error under the true poses (`truth/`, a COLMAP text
+/// model) of the inliers of every cross-visit pair COLMAP maps with.
+fn mapped_pair_errors(store: &Store, truth: &Path) -> Result<Vec<f64>> {
+    let truth_model = revisit_colmap::read_model(truth)?;
+    let names: BTreeMap<ImageId, String> = store.image_ids()?.into_iter().map(|(name, id)| (id, name)).collect();
+    let mut errors = Vec::new();
+    for record in store.pair_records()?.iter().filter(|r| r.kind == PairKind::Cross && r.num_inliers > 0) {
+        let (a, b) = (record.image_id1, record.image_id2);
+        let Some((_, inliers)) = store.two_view_geometry(revisit_core::pair_id(a, b))? else { continue };
+        let image = |id: ImageId| {
+            let name = names.get(&id).with_context(|| format!("image {id} has no name"))?;
+            let image = truth_model.image_by_name(name).with_context(|| format!("{}: no {name}", truth.display()))?;
+            let camera = truth_model.cameras.get(&image.camera_id).context("truth: an image without its camera")?;
+            let keypoints = store.read_keypoints(id)?;
+            anyhow::Ok((image, camera, keypoints))
+        };
+        let ((image1, camera1, keypoints1), (image2, camera2, keypoints2)) = (image(a)?, image(b)?);
+        let points: Vec<([f64; 2], [f64; 2])> = inliers
+            .iter()
+            .filter_map(|&[i, j]| {
+                let (p, q) = (keypoints1.get(i as usize)?, keypoints2.get(j as usize)?);
+                Some(([f64::from(p.x), f64::from(p.y)], [f64::from(q.x), f64::from(q.y)]))
+            })
+            .collect();
+        let cameras = [camera1, camera2];
+        if let Some(error) = median_epipolar_error_px(cameras, &image1.cam_from_world, &image2.cam_from_world, &points)
+        {
+            errors.push(error);
+        }
+    }
+    Ok(errors)
 }
 
 /// Median cross-session reprojection error of `model` over every click file
@@ -413,22 +461,38 @@ fn extraction_figures(
 fn print_figures(f: &Figures) {
     println!();
     println!(
-        "{:<14} {:>10} {:>9} {:>8} {:>10} {:>10} {:>12} {:>10}",
-        "strategy", "match s", "pairs", "cross", "verified", "inliers", "one model", "median px"
+        "{:<14} {:>10} {:>9} {:>8} {:>10} {:>8} {:>18} {:>10} {:>12} {:>10}",
+        "strategy",
+        "match s",
+        "pairs",
+        "cross",
+        "verified",
+        "aside",
+        "mapped (wrong/far)",
+        "inliers",
+        "one model",
+        "median px"
     );
     for s in &f.strategies {
         println!(
-            "{:<14} {:>10.1} {:>9} {:>8} {:>10} {:>10} {:>12} {:>10}",
+            "{:<14} {:>10.1} {:>9} {:>8} {:>10} {:>8} {:>18} {:>10} {:>12} {:>10}",
             s.strategy,
             s.matching_secs,
             s.pairs_matched,
             s.cross_pairs_matched,
             s.cross_pairs_verified,
+            s.cross_pairs_set_aside,
+            format!("{} ({}/{})", s.cross_pairs_mapped, s.wrong_cross_pairs_mapped, s.far_wrong_cross_pairs_mapped),
             s.cross_inliers,
             format!("{}/{}", s.sessions_in_chosen_model, s.sessions),
             s.median_cross_error_px.map_or("-".to_owned(), |m| format!("{m:.2}")),
         );
     }
+    println!(
+        "aside: verified cross-visit pairs the consistency check set aside; mapped (wrong/far): those COLMAP maps \
+         with, and of them wrong by the truth (median epipolar error over {MAX_RIGHT_PAIR_ERROR_PX} px / over \
+         {FAR_WRONG_PAIR_ERROR_PX} px)"
+    );
     let secs = |name: &str| f.strategies.iter().find(|s| s.strategy == name).map(|s| s.matching_secs);
     if let (Some(vpr), Some(all)) = (secs("vpr"), secs("learned-all")) {
         println!(
