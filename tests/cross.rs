@@ -84,6 +84,19 @@ fn strong_change_links_with_place_recognition_and_roll_search_not_with_sift() {
     let error = cross_error_px(&reef, &all, &vpr).expect("clicks scored");
     assert!(error < 2.0, "median cross-session reprojection error {error} px after the fourth visit");
 
+    // Every cross-visit pair the consistency check finds at odds with its roll or with its visits'
+    // other pairs shows another place by the truth; asked to, it maps without them (nothing else
+    // is redone).
+    let report = reconstruct(&reef, &all, &vpr, &["--set-aside-inconsistent"]);
+    let consistency = &report["cross"]["consistency"];
+    let count = |key: &str| consistency[key].as_u64().unwrap();
+    assert!(count("set_aside") > 0, "{consistency}");
+    assert_eq!(count("set_aside"), count("roll_disagrees") + count("off_consensus"), "{consistency}");
+    let set_aside = set_aside_pair_errors_px(&reef, &vpr);
+    assert_eq!(set_aside.len() as u64, count("set_aside"));
+    assert!(set_aside.iter().all(|e| *e > 20.0), "set aside, with median epipolar errors (px) {set_aside:?}");
+    assert_eq!(report["cross"]["learned_matching"]["done"], 0, "{report:#}");
+
     // Roll search is what links a visit flown the other way round (s3, about
     // 180 degrees from s1): without it, the learned matcher finds no link.
     let off = dir.path().join("roll-off");
@@ -191,4 +204,37 @@ fn match_prints_verified_matches_in_each_images_own_frame() {
     assert!(far * 20 < matches.len(), "{far} of {} matches off by more than 2 px", matches.len());
     let (drawn_width, _) = image::image_dimensions(&png).unwrap();
     assert!(drawn_width > height);
+}
+
+/// The median epipolar error under the truth's poses of the inliers of every pair `work`'s store
+/// set aside.
+fn set_aside_pair_errors_px(reef: &std::path::Path, work: &std::path::Path) -> Vec<f64> {
+    let truth = revisit_colmap::read_model(&reef.join("truth")).unwrap();
+    let store = revisit_store::Store::open_read_only(&work.join("database.db")).unwrap();
+    let names: std::collections::BTreeMap<u32, String> =
+        store.image_ids().unwrap().into_iter().map(|(name, id)| (id, name)).collect();
+    let mut errors = Vec::new();
+    for pair in store.set_aside_pairs().unwrap().into_keys() {
+        let (a, b) = revisit_core::pair_from_id(pair);
+        let side = |id: u32| {
+            let image = truth.image_by_name(&names[&id]).unwrap();
+            (image, &truth.cameras[&image.camera_id], store.read_keypoints(id).unwrap())
+        };
+        let ((image_a, camera_a, keypoints_a), (image_b, camera_b, keypoints_b)) = (side(a), side(b));
+        let points: Vec<([f64; 2], [f64; 2])> = store
+            .verified_matches(pair)
+            .unwrap()
+            .iter()
+            .map(|&[i, j]| {
+                let (p, q) = (keypoints_a[i as usize], keypoints_b[j as usize]);
+                ([f64::from(p.x), f64::from(p.y)], [f64::from(q.x), f64::from(q.y)])
+            })
+            .collect();
+        let cameras = [camera_a, camera_b];
+        errors.push(
+            revisit_eval::median_epipolar_error_px(cameras, &image_a.cam_from_world, &image_b.cam_from_world, &points)
+                .unwrap(),
+        );
+    }
+    errors
 }

@@ -31,6 +31,12 @@ fn subvo_pool_registers_and_matches_ground_truth() {
     let registered = report["sessions"]["pool"]["registered"].as_u64().unwrap();
     assert_eq!(report["sessions"]["pool"]["images"], 110);
     assert!(registered >= 99, "only {registered} of 110 frames registered: {report:#}");
+    // Peak memory per stage: decoding 1280x720 frames and extracting takes tens of MiB at least;
+    // COLMAP's own process counts in the mapping stage.
+    for stage in ["features", "matching", "mapping"] {
+        let peak = report["peak_rss_mib"][stage].as_f64().unwrap_or(0.0);
+        assert!(peak > 20.0, "peak memory of {stage}: {peak} MiB: {report:#}");
+    }
 
     // Ground truth: row 2k of gt1.csv (X, Z in cm) is kept frame k.
     let gt: Vec<[f64; 2]> = csv::ReaderBuilder::new()

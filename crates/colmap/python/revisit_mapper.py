@@ -10,6 +10,7 @@ prints one JSON line with a summary of each model on stdout. Logs go to stderr.
 import argparse
 import json
 import os
+import resource
 import shutil
 import sqlite3
 import sys
@@ -106,7 +107,9 @@ def main() -> int:
             "points": model.num_points3D(),
             "mean_reprojection_error_px": model.compute_mean_reprojection_error(),
         })
-    print(json.dumps({"seconds": time.monotonic() - started, "models": summary}))
+    # ru_maxrss is in KiB on Linux.
+    peak_rss_mib = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
+    print(json.dumps({"seconds": time.monotonic() - started, "models": summary, "peak_rss_mib": peak_rss_mib}))
     return 0
 
 

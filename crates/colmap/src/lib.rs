@@ -10,7 +10,9 @@
 mod mapper;
 pub mod model;
 
-pub use mapper::{check_python, run_mapper, Engine, MapperError, MapperOptions, MapperRun, ModelSummary, PYTHON_ENV};
+pub use mapper::{
+    check_python, run_mapper, Engine, Mapped, MapperError, MapperOptions, MapperRun, ModelSummary, PYTHON_ENV,
+};
 
 pub use model::{
     read_model, read_models, session_palette, write_binary, write_ply, write_text, ColmapError, ModelFormat, PlyColors,

@@ -115,9 +115,13 @@ pub struct ModelSummary {
     pub mean_reprojection_error_px: f64,
 }
 
-#[derive(Debug, Deserialize)]
-struct Summary {
-    models: Vec<ModelSummary>,
+/// What one mapper run produced.
+#[derive(Clone, Debug, PartialEq, Deserialize)]
+pub struct Mapped {
+    /// Every model, largest first.
+    pub models: Vec<ModelSummary>,
+    /// The mapper process's peak resident memory, MiB.
+    pub peak_rss_mib: Option<f64>,
 }
 
 /// Checks that `python` runs and imports pycolmap; returns it.
@@ -156,11 +160,7 @@ pub struct MapperRun<'a> {
 /// Maps the store into `run.output/<k>`, k = 0, 1, ... by decreasing size,
 /// and returns every model produced. Setting `cancelled` stops COLMAP (within
 /// a tenth of a second) and returns [`MapperError::Cancelled`].
-pub fn run_mapper(
-    run: &MapperRun<'_>,
-    options: &MapperOptions,
-    cancelled: &AtomicBool,
-) -> Result<Vec<ModelSummary>, MapperError> {
+pub fn run_mapper(run: &MapperRun<'_>, options: &MapperOptions, cancelled: &AtomicBool) -> Result<Mapped, MapperError> {
     let MapperRun { python, database, image_root, output, extend, constant_cameras } = *run;
     let parent = output.parent().unwrap_or(Path::new("."));
     let script = parent.join("revisit_mapper.py");
@@ -204,6 +204,5 @@ pub fn run_mapper(
     }
     let stdout = String::from_utf8_lossy(&result.stdout);
     let line = stdout.lines().rev().find(|l| l.starts_with('{')).unwrap_or("");
-    let summary: Summary = serde_json::from_str(line).map_err(|e| MapperError::BadSummary(e.to_string()))?;
-    Ok(summary.models)
+    serde_json::from_str(line).map_err(|e| MapperError::BadSummary(e.to_string()))
 }

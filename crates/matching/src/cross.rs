@@ -51,9 +51,13 @@ pub struct CrossOptions {
     /// Verified cross-visit pairs are checked against their roll and against
     /// each other before mapping ([`crate::consistency`]): a pair whose heading
     /// offset between its visits is further than this from the other pairs'
-    /// is set aside. `None` checks nothing. Default
-    /// [`DEFAULT_CONSISTENCY_TOLERANCE_DEG`].
-    pub consistency_tolerance_deg: Option<f64>,
+    /// is inconsistent. Default [`DEFAULT_CONSISTENCY_TOLERANCE_DEG`].
+    pub consistency_tolerance_deg: f64,
+    /// Inconsistent pairs are set aside (not mapped) rather than only
+    /// reported. Default false: COLMAP's own robust steps absorb most of them,
+    /// and on some surveys one is the only thing that brings an image into
+    /// the model (issue 11's note).
+    pub set_aside_inconsistent: bool,
 }
 
 impl Default for CrossOptions {
@@ -63,7 +67,8 @@ impl Default for CrossOptions {
             roll_margin: DEFAULT_ROLL_MARGIN,
             anchor_radius_px: DEFAULT_ANCHOR_RADIUS_PX,
             verify: VerifyOptions { min_inliers: CROSS_MIN_INLIERS, ..VerifyOptions::default() },
-            consistency_tolerance_deg: Some(DEFAULT_CONSISTENCY_TOLERANCE_DEG),
+            consistency_tolerance_deg: DEFAULT_CONSISTENCY_TOLERANCE_DEG,
+            set_aside_inconsistent: false,
         }
     }
 }
@@ -73,9 +78,7 @@ impl CrossOptions {
         self.roll_search.check()?;
         check_range("roll_margin", self.roll_margin, 1.0, f32::MAX, "at least 1")?;
         check_range("anchor_radius_px", self.anchor_radius_px, 0.0, 100.0, "in [0, 100]")?;
-        if let Some(tolerance) = self.consistency_tolerance_deg {
-            check_range("consistency_tolerance_deg", tolerance, 1.0, 180.0, "in [1, 180]")?;
-        }
+        check_range("consistency_tolerance_deg", self.consistency_tolerance_deg, 1.0, 180.0, "in [1, 180]")?;
         self.verify.check()
     }
 }

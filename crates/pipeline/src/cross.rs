@@ -369,21 +369,25 @@ pub fn match_learned_pairs(
 pub struct ConsistencyCounts {
     /// Verified cross-visit pairs checked.
     pub checked: usize,
-    /// Set aside: matched at a roll their matches do not show.
+    /// Inconsistent: matched at a roll their matches do not show.
     pub roll_disagrees: usize,
-    /// Set aside: their visits' other pairs agree on another heading offset.
+    /// Inconsistent: their visits' other pairs agree on another heading offset.
     pub off_consensus: usize,
+    /// Inconsistent pairs set aside (not mapped); 0 unless asked for.
+    pub set_aside: usize,
 }
 
 /// Checks every verified cross-visit pair of `sessions` against its roll and
-/// against the other pairs ([`revisit_matching::consistency`]), sets aside
-/// the pairs that fail (COLMAP does not see them; the store keeps them), and
-/// puts back pairs set aside before that pass now (a visit added since can
-/// settle a consensus). Deterministic: the same store gives the same verdicts.
+/// against the other pairs ([`revisit_matching::consistency`]) and logs each
+/// inconsistent one. With `set_aside`, those are set aside (COLMAP does not
+/// see them; the store keeps them); every other pair set aside before is put
+/// back (a visit added since can settle a consensus, and the option can be
+/// turned off). Deterministic: the same store gives the same verdicts.
 pub fn check_consistency(
     store: &mut Store,
     sessions: &[Session],
     tolerance_deg: f64,
+    set_aside: bool,
 ) -> Result<ConsistencyCounts, PipelineError> {
     let visit_of: BTreeMap<ImageId, usize> =
         sessions.iter().enumerate().flat_map(|(v, s)| s.images.iter().map(move |i| (i.id, v))).collect();
@@ -421,18 +425,13 @@ pub fn check_consistency(
         });
     }
     let verdicts = consistency::check_cross_pairs(&checked, &visit_of, tolerance_deg);
-    let aside = store.set_aside_pairs()?;
+    let mut aside = store.set_aside_pairs()?;
     let mut counts = ConsistencyCounts { checked: verdicts.len(), ..ConsistencyCounts::default() };
     for (index, verdict) in verdicts {
         let pair = &checked[index];
         let id = pair_id(pair.image_id1, pair.image_id2);
         let reason = match verdict {
-            Verdict::Consistent => {
-                if aside.contains_key(&id) {
-                    store.restore_set_aside(id)?;
-                }
-                continue;
-            }
+            Verdict::Consistent => continue,
             Verdict::RollDisagrees { turn_deg, roll } => {
                 counts.roll_disagrees += 1;
                 format!("matched at roll {}, but its matches turn the image by {turn_deg:.0} deg", roll.degrees())
@@ -442,10 +441,20 @@ pub fn check_consistency(
                 format!("heading offset {offset_deg:.0} deg between the visits; their other pairs agree on {consensus_deg:.0}")
             }
         };
-        tracing::warn!("cross-visit pair {} - {} set aside: {reason}", names[&pair.image_id1], names[&pair.image_id2]);
-        if !aside.contains_key(&id) {
-            store.set_aside(id, &reason)?;
+        let (a, b) = (&names[&pair.image_id1], &names[&pair.image_id2]);
+        if set_aside {
+            tracing::warn!("cross-visit pair {a} - {b} set aside: {reason}");
+            if aside.remove(&id).is_none() {
+                store.set_aside(id, &reason)?;
+            }
+            counts.set_aside += 1;
+        } else {
+            tracing::warn!("cross-visit pair {a} - {b} is inconsistent (mapped all the same): {reason}");
         }
+    }
+    // What stays in `aside` is consistent now, or no longer to be set aside.
+    for id in aside.into_keys() {
+        store.restore_set_aside(id)?;
     }
     Ok(counts)
 }

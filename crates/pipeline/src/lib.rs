@@ -28,6 +28,7 @@ pub mod keyframes;
 pub mod learned;
 pub mod locate;
 pub mod mapping;
+pub mod memory;
 pub mod messages;
 pub mod odometry;
 pub mod options;

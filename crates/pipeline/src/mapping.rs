@@ -20,6 +20,9 @@ pub struct MappingOutcome {
     pub extended: bool,
     /// A fingerprint of the store's content that the models were built from.
     pub inputs: String,
+    /// COLMAP's peak resident memory, MiB (`None` when the models were kept).
+    #[serde(default)]
+    pub peak_rss_mib: Option<f64>,
 }
 
 /// Where the models of a work folder live: `WORK/model` for one model,
@@ -80,7 +83,7 @@ pub fn map(
     if let Some(before) = &before {
         if before.inputs == inputs {
             tracing::info!("mapping: the store is unchanged since the last run; keeping its models");
-            return Ok(MappingOutcome { reused: true, extended: false, ..before.clone() });
+            return Ok(MappingOutcome { reused: true, extended: false, peak_rss_mib: None, ..before.clone() });
         }
     }
     let staging = work.join(".mapping");
@@ -111,9 +114,9 @@ pub fn map(
     if root.exists() {
         std::fs::remove_dir_all(&root).map_err(io(&root))?;
     }
-    let count = produced.len();
+    let count = produced.models.len();
     let mut models = Vec::with_capacity(count);
-    for (k, model) in produced.into_iter().enumerate() {
+    for (k, model) in produced.models.into_iter().enumerate() {
         let target = if count == 1 { root.clone() } else { root.join((k + 1).to_string()) };
         if let Some(parent) = target.parent() {
             std::fs::create_dir_all(parent).map_err(io(parent))?;
@@ -125,7 +128,13 @@ pub fn map(
     if let Some(copy) = &extend_copy {
         std::fs::remove_dir_all(copy).map_err(io(copy))?;
     }
-    let outcome = MappingOutcome { models, reused: false, extended: extend.is_some(), inputs: inputs.to_owned() };
+    let outcome = MappingOutcome {
+        models,
+        reused: false,
+        extended: extend.is_some(),
+        inputs: inputs.to_owned(),
+        peak_rss_mib: produced.peak_rss_mib,
+    };
     let record = record_path(work);
     let json = serde_json::to_string_pretty(&outcome).unwrap_or_default();
     std::fs::write(&record, json).map_err(io(&record))?;

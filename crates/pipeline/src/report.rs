@@ -40,6 +40,10 @@ pub struct Report {
     pub mapping: MappingReport,
     /// Seconds per stage.
     pub seconds: BTreeMap<String, f64>,
+    /// Peak resident memory per stage, MiB: Revisit's process during the
+    /// stage, and for mapping the larger of it and COLMAP's process.
+    #[serde(default)]
+    pub peak_rss_mib: BTreeMap<String, f64>,
     /// The options the reconstruction ran with.
     pub options: ReconstructOptions,
 }

@@ -16,6 +16,7 @@ use crate::ingest::SessionImages;
 use crate::learned::Learned;
 use crate::locate::Tools;
 use crate::mapping::{self, io, MappingOutcome};
+use crate::memory;
 use crate::messages::FeaturesRecord;
 use crate::options::{CameraSpec, ReconstructOptions};
 use crate::report::{CameraReport, CrossReport, MappingReport, Report};
@@ -92,16 +93,25 @@ pub struct Workspace {
     sessions: Vec<Session>,
 }
 
-/// Runs `f` and records its seconds under `stage`.
-fn timed<T>(
-    seconds: &mut BTreeMap<String, f64>,
-    stage: &str,
-    f: impl FnOnce() -> Result<T, PipelineError>,
-) -> Result<T, PipelineError> {
-    let start = Instant::now();
-    let out = f()?;
-    seconds.insert(stage.to_owned(), start.elapsed().as_secs_f64());
-    Ok(out)
+/// Seconds and peak resident memory of each stage of a run.
+#[derive(Default)]
+struct StageFigures {
+    seconds: BTreeMap<String, f64>,
+    peak_rss_mib: BTreeMap<String, f64>,
+}
+
+impl StageFigures {
+    /// Runs `f` and records its seconds and this process's peak memory during it under `stage`.
+    fn run<T>(&mut self, stage: &str, f: impl FnOnce() -> Result<T, PipelineError>) -> Result<T, PipelineError> {
+        memory::reset_peak();
+        let start = Instant::now();
+        let out = f()?;
+        self.seconds.insert(stage.to_owned(), start.elapsed().as_secs_f64());
+        if let Some(peak) = memory::peak_rss_mib() {
+            self.peak_rss_mib.insert(stage.to_owned(), peak);
+        }
+        Ok(out)
+    }
 }
 
 impl Workspace {
@@ -263,7 +273,7 @@ impl Workspace {
     /// Runs every stage the options ask for, then maps, exports and writes
     /// `report.json`. Each stage resumes from what the store holds.
     pub fn run(&mut self, progress: &dyn Progress, cancel: &Cancel) -> Result<Report, PipelineError> {
-        let mut seconds = BTreeMap::new();
+        let mut stages = StageFigures::default();
         let strategy = self.options.cross;
         // Visits are linked only when there are several.
         let learned_strategy = strategy.learned() && self.sessions.len() >= 2;
@@ -272,44 +282,45 @@ impl Workspace {
             true => Some(self.open_learned()?),
             false => None,
         };
-        let features = timed(&mut seconds, "features", || {
+        let features = stages.run("features", || {
             stages::extract_features(&mut self.store, &self.sessions, &self.options.features, progress, cancel)
         })?;
         let mut cross_report = CrossReport::default();
         // Learned features come before matching within visits: their keypoints
         // join the SIFT ones there, so cross-visit tracks continue inside visits.
         let learned_keypoints = match learned.as_mut() {
-            Some((_, learned)) => Some(timed(&mut seconds, "learned_features", || {
+            Some((_, learned)) => Some(stages.run("learned_features", || {
                 cross_report.learned_features = Some(self.extract_learned(learned, progress, cancel)?);
                 cross::register_learned_keypoints(&mut self.store, learned.method.name(), &self.sessions)
             })?),
             None => None,
         };
-        let matching =
-            timed(&mut seconds, "matching", || self.match_sift(learned_keypoints.as_ref(), progress, cancel))?;
+        let matching = stages.run("matching", || self.match_sift(learned_keypoints.as_ref(), progress, cancel))?;
         drop(learned_keypoints);
         if let Some((runtime, learned)) = learned.as_mut() {
             let places = match strategy.places() {
-                true => {
-                    Some(timed(&mut seconds, "places", || self.describe_places(runtime, learned, progress, cancel))?)
-                }
+                true => Some(stages.run("places", || self.describe_places(runtime, learned, progress, cancel))?),
                 false => None,
             };
             cross_report.places = places.as_ref().map(|p| p.counts);
-            cross_report.learned_matching = Some(timed(&mut seconds, "learned_matching", || {
-                self.match_learned(learned, places.as_ref(), progress, cancel)
+            cross_report.learned_matching = Some(
+                stages.run("learned_matching", || self.match_learned(learned, places.as_ref(), progress, cancel))?,
+            );
+        }
+        if self.sessions.len() >= 2 {
+            let options = &self.options.learned_matching;
+            let (tolerance, set_aside) = (options.consistency_tolerance_deg, options.set_aside_inconsistent);
+            cross_report.consistency = Some(stages.run("consistency", || {
+                cross::check_consistency(&mut self.store, &self.sessions, tolerance, set_aside)
             })?);
         }
-        if let (Some(tolerance), true) =
-            (self.options.learned_matching.consistency_tolerance_deg, self.sessions.len() >= 2)
-        {
-            cross_report.consistency = Some(timed(&mut seconds, "consistency", || {
-                cross::check_consistency(&mut self.store, &self.sessions, tolerance)
-            })?);
+        let outcome = stages.run("mapping", || self.map(cancel))?;
+        // COLMAP maps in its own process.
+        if let (Some(colmap), Some(peak)) = (outcome.peak_rss_mib, stages.peak_rss_mib.get_mut("mapping")) {
+            *peak = peak.max(colmap);
         }
-        let outcome = timed(&mut seconds, "mapping", || self.map(cancel))?;
         let chosen = export::chosen_model(&outcome.models, &self.sessions);
-        timed(&mut seconds, "export", || self.export(&outcome, chosen))?;
+        stages.run("export", || self.export(&outcome, chosen))?;
 
         let records = self.store.pair_records()?;
         let sessions = export::session_reports(&self.sessions, &outcome.models, chosen);
@@ -331,7 +342,8 @@ impl Workspace {
                 extended: outcome.extended,
                 mean_reprojection_error_px: chosen_model.map(|m| m.mean_reprojection_error_px),
             },
-            seconds,
+            seconds: stages.seconds,
+            peak_rss_mib: stages.peak_rss_mib,
             options: self.options.clone(),
         };
         report.write(&self.dir.join("report.json"))?;

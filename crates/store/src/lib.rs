@@ -407,7 +407,8 @@ impl Store {
     /// Puts a pair set aside back where COLMAP reads it. One transaction.
     pub fn restore_set_aside(&mut self, pair: u64) -> Result<()> {
         self.move_geometry(
-            "INSERT OR REPLACE INTO two_view_geometries \
+            // Columns named: pycolmap adds its own to COLMAP's table when it maps.
+            "INSERT OR REPLACE INTO two_view_geometries (pair_id, rows, cols, data, config, F, E, H, qvec, tvec) \
              SELECT pair_id, rows, cols, data, config, F, E, H, qvec, tvec FROM revisit_set_aside WHERE pair_id = ?1",
             params![pair as i64],
             "DELETE FROM revisit_set_aside WHERE pair_id = ?1",

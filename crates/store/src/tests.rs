@@ -121,7 +121,9 @@ fn pairs_are_stored_in_colmap_order() {
     assert_eq!(inliers, vec![[1, 4]]);
     assert_eq!(store.pair_records().unwrap()[0].image_id1, a.min(b));
 
-    // Set aside, COLMAP no longer sees the pair; its inliers are kept and come back whole.
+    // Set aside, COLMAP no longer sees the pair; its inliers are kept and come back whole, also
+    // after pycolmap has added its columns to COLMAP's table (as it does when it maps).
+    store.conn.execute_batch("ALTER TABLE two_view_geometries ADD COLUMN camera1 BLOB").unwrap();
     store.set_aside(pair, "off consensus").unwrap();
     assert_eq!(store.two_view_geometry(pair).unwrap(), None);
     assert_eq!(store.verified_matches(pair).unwrap(), vec![[1, 4]]);

@@ -1,6 +1,7 @@
 //! `revisit bench ...`: figures side by side with the reference implementations.
 
 mod bag;
+mod colmap;
 mod live;
 mod matching;
 mod sift;
@@ -10,6 +11,10 @@ pub enum Bench {
     /// Bag read throughput (MB/s, messages/s, images decoded/s) beside Python
     /// mcap + mcap-ros2-support on the same mcap file.
     Bag(bag::Args),
+    /// Revisit's whole reconstruction beside pycolmap's own pipeline (SIFT,
+    /// exhaustive or sequential matching, incremental mapping) on the same
+    /// sessions: seconds per stage, images registered, peak memory, time ratio.
+    Colmap(colmap::Args),
     /// Revisit's SIFT against OpenCV's on the same real images: time per image
     /// at equal feature count and verified inliers on overlapping pairs.
     Sift(sift::Args),
@@ -27,8 +32,20 @@ pub enum Bench {
 pub fn run(bench: Bench) -> anyhow::Result<()> {
     match bench {
         Bench::Bag(args) => bag::run(args),
+        Bench::Colmap(args) => colmap::run(args),
         Bench::Sift(args) => sift::run(args),
         Bench::Matching(args) => matching::run(args),
         Bench::Live(args) => live::run(args),
     }
+}
+
+/// Writes a bench's figures as JSON to `--json`'s file, if one was given.
+fn write_json(path: Option<&std::path::Path>, figures: &impl serde::Serialize) -> anyhow::Result<()> {
+    use anyhow::Context;
+    if let Some(path) = path {
+        std::fs::write(path, serde_json::to_string_pretty(figures)? + "\n")
+            .with_context(|| format!("--json {}", path.display()))?;
+        println!("wrote: {}", path.display());
+    }
+    Ok(())
 }

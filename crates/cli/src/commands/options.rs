@@ -117,6 +117,16 @@ pub struct OptionArgs {
     /// search. 1 turns the check off.
     #[arg(long, default_value_t = revisit_matching::roll::DEFAULT_ROLL_MARGIN, value_name = "R")]
     roll_margin: f32,
+    /// Before mapping, a verified cross-visit pair is reported inconsistent when
+    /// the heading offset between its two visits that its matches imply is
+    /// more than DEG from the one the visits' other pairs agree on, or when its
+    /// matches do not turn the image by the roll it was matched at.
+    #[arg(long, default_value_t = revisit_matching::DEFAULT_CONSISTENCY_TOLERANCE_DEG, value_name = "DEG")]
+    consistency_tolerance: f64,
+    /// Set inconsistent cross-visit pairs aside (not mapped) instead of only
+    /// reporting them.
+    #[arg(long)]
+    set_aside_inconsistent: bool,
     /// Largest number of SIFT features per image (the strongest are kept).
     #[arg(long, default_value_t = 4096, value_name = "N")]
     max_features: usize,
@@ -191,6 +201,8 @@ impl OptionArgs {
         cross.anchor_radius_px = self.anchor_radius;
         cross.verify.min_inliers = self.cross_min_inliers;
         cross.verify.max_error_px = self.cross_max_error;
+        cross.consistency_tolerance_deg = self.consistency_tolerance;
+        cross.set_aside_inconsistent = self.set_aside_inconsistent;
         options.places.candidates.top_k = self.vpr_top_k;
         options.places.candidates.max_distance = self.vpr_max_distance;
         if let Some(model) = &self.vpr_model {

@@ -142,6 +142,17 @@ fn print_summary(report: &Report, work: &Path) {
     if !report.rolls.is_empty() {
         println!("cross pairs by roll: {:?}", report.rolls);
     }
+    if let Some(c) = report.cross.consistency.filter(|c| c.roll_disagrees + c.off_consensus > 0) {
+        let fate = match c.set_aside {
+            0 => "mapped all the same (--set-aside-inconsistent sets them aside)",
+            _ => "set aside, not mapped",
+        };
+        println!(
+            "inconsistent cross pairs: {} at odds with their roll, {} with their visits' other pairs (of {} \
+             checked; each is logged): {fate}",
+            c.roll_disagrees, c.off_consensus, c.checked
+        );
+    }
     println!("models: {} (sizes {:?})", report.models, report.model_sizes);
     for name in &report.unlinked_sessions {
         println!(

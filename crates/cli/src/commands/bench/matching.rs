@@ -177,12 +177,7 @@ pub fn run(args: Args) -> Result<()> {
     figures.extraction = extraction_figures(&sessions_dir, &session_names, args.extraction_images, &args.tools)?;
 
     print_figures(&figures);
-    if let Some(path) = &args.json {
-        std::fs::write(path, serde_json::to_string_pretty(&figures)?)
-            .with_context(|| format!("--json {}", path.display()))?;
-        println!("wrote: {}", path.display());
-    }
-    Ok(())
+    super::write_json(args.json.as_deref(), &figures)
 }
 
 /// The truth's camera (intrinsics.json) when every session has the same one

@@ -110,11 +110,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     let report = result?;
 
     print_report(&report);
-    if let Some(path) = &args.json {
-        let text = serde_json::to_string_pretty(&report)?;
-        fs::write(path, text + "\n").with_context(|| format!("writing {}", path.display()))?;
-    }
-    Ok(())
+    super::write_json(args.json.as_deref(), &report)
 }
 
 fn run_in(
