@@ -9,10 +9,22 @@ resident memory. Everything runs on the CPU with `--threads` threads.
 
 import argparse
 import json
-import resource
 import sys
 import time
 from pathlib import Path
+
+
+def peak_rss_mib():
+    """This process's peak resident memory, MiB (Linux's VmHWM: unlike ru_maxrss, it does not
+    count the parent's memory at the fork that started this process)."""
+    try:
+        with open("/proc/self/status") as status:
+            for line in status:
+                if line.startswith("VmHWM:"):
+                    return int(line.split()[1]) / 1024
+    except OSError:
+        pass
+    return None
 
 
 def main() -> int:
@@ -29,6 +41,8 @@ def main() -> int:
     args = parser.parse_args()
 
     import pycolmap
+
+    pycolmap.logging.minloglevel = 1  # warnings and errors only: the stages' times are the output
 
     names = [line.strip() for line in args.image_list.read_text().splitlines() if line.strip()]
     args.work.mkdir(parents=True, exist_ok=True)
@@ -76,8 +90,7 @@ def main() -> int:
         "images": len(names),
         "registered": registered,
         "models": len(models),
-        # ru_maxrss is in KiB on Linux.
-        "peak_rss_mib": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024,
+        "peak_rss_mib": peak_rss_mib(),
     }))
     return 0
 

@@ -10,7 +10,6 @@ prints one JSON line with a summary of each model on stdout. Logs go to stderr.
 import argparse
 import json
 import os
-import resource
 import shutil
 import sqlite3
 import sys
@@ -35,6 +34,19 @@ def exit_with_parent() -> None:
 def all_cameras(database: Path) -> set:
     with sqlite3.connect(f"file:{database}?mode=ro", uri=True) as db:
         return {row[0] for row in db.execute("SELECT camera_id FROM cameras")}
+
+
+def peak_rss_mib():
+    """This process's peak resident memory, MiB (Linux's VmHWM: unlike ru_maxrss, it does not
+    count the parent's memory at the fork that started this process)."""
+    try:
+        with open("/proc/self/status") as status:
+            for line in status:
+                if line.startswith("VmHWM:"):
+                    return int(line.split()[1]) / 1024
+    except OSError:
+        pass
+    return None
 
 
 def main() -> int:
@@ -107,9 +119,7 @@ def main() -> int:
             "points": model.num_points3D(),
             "mean_reprojection_error_px": model.compute_mean_reprojection_error(),
         })
-    # ru_maxrss is in KiB on Linux.
-    peak_rss_mib = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
-    print(json.dumps({"seconds": time.monotonic() - started, "models": summary, "peak_rss_mib": peak_rss_mib}))
+    print(json.dumps({"seconds": time.monotonic() - started, "models": summary, "peak_rss_mib": peak_rss_mib()}))
     return 0
 
 

@@ -108,6 +108,9 @@ struct RollFigures {
     same_roll_share_of_verified: f64,
     same_roll_share_of_all: f64,
     probe_fell_back: usize,
+    /// The roll whose place descriptor is nearest (what place recognition
+    /// predicts) is the full search's roll: share of the pairs it verifies.
+    place_roll_share_of_verified: f64,
     one_match_secs: f64,
     full_search_secs: f64,
     probe_search_secs: f64,
@@ -375,11 +378,20 @@ fn roll_figures(out: &Path, tools: &ToolArgs) -> Result<RollFigures> {
         same_roll_share_of_verified: 0.0,
         same_roll_share_of_all: 0.0,
         probe_fell_back: 0,
+        place_roll_share_of_verified: 0.0,
         one_match_secs: 0.0,
         full_search_secs: 0.0,
         probe_search_secs: 0.0,
     };
-    let (mut same_verified, mut same_all) = (0, 0);
+    let PlaceSource::Vlad { clusters } = PlaceSource::default() else { anyhow::bail!("the default places are VLAD") };
+    let places = store.global_descriptors(&format!("vlad{clusters}-{}", method.name()))?;
+    let place_roll = |a: ImageId, b: ImageId| -> Option<Roll> {
+        let database = [places.get(&(a, 0))?.as_slice()];
+        let query: Vec<(Roll, &[f32])> =
+            Roll::ALL.iter().filter_map(|r| Some((*r, places.get(&(b, r.degrees()))?.as_slice()))).collect();
+        nearest(&query, &database, &CandidateOptions { top_k: 1, max_distance: None }).first().map(|c| c.roll)
+    };
+    let (mut same_verified, mut same_all, mut place_same) = (0, 0, 0);
     let bar = crate::progress::bar(pairs.len() as u64, "roll search: probe vs full");
     for pair in &pairs {
         let a = store.read_learned_features(pair.image_id1, method.name(), 0)?;
@@ -403,6 +415,7 @@ fn roll_figures(out: &Path, tools: &ToolArgs) -> Result<RollFigures> {
         if !full.geometry.inlier_matches.is_empty() && full.roll_is_clear(margin) {
             figures.verified_by_full += 1;
             same_verified += usize::from(agree);
+            place_same += usize::from(place_roll(pair.image_id1, pair.image_id2) == Some(full.roll));
         }
         bar.inc(1);
     }
@@ -410,6 +423,7 @@ fn roll_figures(out: &Path, tools: &ToolArgs) -> Result<RollFigures> {
     let n = pairs.len().max(1) as f64;
     figures.same_roll_share_of_verified = same_verified as f64 / figures.verified_by_full.max(1) as f64;
     figures.same_roll_share_of_all = same_all as f64 / n;
+    figures.place_roll_share_of_verified = place_same as f64 / figures.verified_by_full.max(1) as f64;
     figures.one_match_secs /= n;
     figures.full_search_secs /= n;
     figures.probe_search_secs /= n;
@@ -514,6 +528,10 @@ fn print_figures(f: &Figures) {
             100.0 * MIN_ROLL_AGREEMENT,
             100.0 * r.same_roll_share_of_all,
             r.probe_fell_back
+        );
+        println!(
+            "place recognition's roll (nearest descriptor) is the full search's on {:.1}% of the pairs it verifies",
+            100.0 * r.place_roll_share_of_verified
         );
         println!(
             "roll search cost per pair: one match {:.2} s, full search {:.2} s ({:.2}x), probe {:.2} s ({:.2}x; goal <= {MAX_ROLL_COST}x)",
