@@ -273,7 +273,7 @@ impl Workspace {
     /// Runs every stage the options ask for, then maps, exports and writes
     /// `report.json`. Each stage resumes from what the store holds.
     pub fn run(&mut self, progress: &dyn Progress, cancel: &Cancel) -> Result<Report, PipelineError> {
-        let mut stages = StageFigures::default();
+        let mut figures = StageFigures::default();
         let strategy = self.options.cross;
         // Visits are linked only when there are several.
         let learned_strategy = strategy.learned() && self.sessions.len() >= 2;
@@ -282,45 +282,45 @@ impl Workspace {
             true => Some(self.open_learned()?),
             false => None,
         };
-        let features = stages.run("features", || {
+        let features = figures.run("features", || {
             stages::extract_features(&mut self.store, &self.sessions, &self.options.features, progress, cancel)
         })?;
         let mut cross_report = CrossReport::default();
         // Learned features come before matching within visits: their keypoints
         // join the SIFT ones there, so cross-visit tracks continue inside visits.
         let learned_keypoints = match learned.as_mut() {
-            Some((_, learned)) => Some(stages.run("learned_features", || {
+            Some((_, learned)) => Some(figures.run("learned_features", || {
                 cross_report.learned_features = Some(self.extract_learned(learned, progress, cancel)?);
                 cross::register_learned_keypoints(&mut self.store, learned.method.name(), &self.sessions)
             })?),
             None => None,
         };
-        let matching = stages.run("matching", || self.match_sift(learned_keypoints.as_ref(), progress, cancel))?;
+        let matching = figures.run("matching", || self.match_sift(learned_keypoints.as_ref(), progress, cancel))?;
         drop(learned_keypoints);
         if let Some((runtime, learned)) = learned.as_mut() {
             let places = match strategy.places() {
-                true => Some(stages.run("places", || self.describe_places(runtime, learned, progress, cancel))?),
+                true => Some(figures.run("places", || self.describe_places(runtime, learned, progress, cancel))?),
                 false => None,
             };
             cross_report.places = places.as_ref().map(|p| p.counts);
             cross_report.learned_matching = Some(
-                stages.run("learned_matching", || self.match_learned(learned, places.as_ref(), progress, cancel))?,
+                figures.run("learned_matching", || self.match_learned(learned, places.as_ref(), progress, cancel))?,
             );
         }
         if self.sessions.len() >= 2 {
             let options = &self.options.learned_matching;
             let (tolerance, set_aside) = (options.consistency_tolerance_deg, options.set_aside_inconsistent);
-            cross_report.consistency = Some(stages.run("consistency", || {
+            cross_report.consistency = Some(figures.run("consistency", || {
                 cross::check_consistency(&mut self.store, &self.sessions, tolerance, set_aside)
             })?);
         }
-        let outcome = stages.run("mapping", || self.map(cancel))?;
+        let outcome = figures.run("mapping", || self.map(cancel))?;
         // COLMAP maps in its own process.
-        if let (Some(colmap), Some(peak)) = (outcome.peak_rss_mib, stages.peak_rss_mib.get_mut("mapping")) {
+        if let (Some(colmap), Some(peak)) = (outcome.peak_rss_mib, figures.peak_rss_mib.get_mut("mapping")) {
             *peak = peak.max(colmap);
         }
         let chosen = export::chosen_model(&outcome.models, &self.sessions);
-        stages.run("export", || self.export(&outcome, chosen))?;
+        figures.run("export", || self.export(&outcome, chosen))?;
 
         let records = self.store.pair_records()?;
         let sessions = export::session_reports(&self.sessions, &outcome.models, chosen);
@@ -342,8 +342,8 @@ impl Workspace {
                 extended: outcome.extended,
                 mean_reprojection_error_px: chosen_model.map(|m| m.mean_reprojection_error_px),
             },
-            seconds: stages.seconds,
-            peak_rss_mib: stages.peak_rss_mib,
+            seconds: figures.seconds,
+            peak_rss_mib: figures.peak_rss_mib,
             options: self.options.clone(),
         };
         report.write(&self.dir.join("report.json"))?;
