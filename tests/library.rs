@@ -16,7 +16,9 @@ use revisit_pipeline::{Cancel, CrossStrategy, ReconstructOptions, Report, Silent
 /// The report with what differs between two work folders taken out: timings
 /// and the model's path (relative to its work folder instead).
 fn comparable(mut report: Report, work: &Path) -> Report {
+    // Time and memory are measured, not computed: they differ from run to run.
     report.seconds.clear();
+    report.peak_rss_mib.clear();
     report.chosen_model = report.chosen_model.map(|m| m.strip_prefix(work).unwrap().to_path_buf());
     report
 }
