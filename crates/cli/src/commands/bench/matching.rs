@@ -299,6 +299,16 @@ fn read_overlaps(truth: &Path) -> Result<Vec<(String, String, f64)>> {
         .collect()
 }
 
+/// The place descriptors the default options make (VLAD over the default
+/// learned features) that the store of `out` holds, by (image, roll degrees).
+fn default_place_descriptors(store: &Store, out: &Path) -> Result<BTreeMap<(ImageId, u32), Vec<f32>>> {
+    let PlaceSource::Vlad { clusters } = PlaceSource::default() else { anyhow::bail!("the default places are VLAD") };
+    let name = format!("vlad{clusters}-{}", LearnedMethod::default().name());
+    let descriptors = store.global_descriptors(&name)?;
+    ensure!(!descriptors.is_empty(), "{}: no {name} descriptors", out.display());
+    Ok(descriptors)
+}
+
 /// Recall@k of the place candidates against the truth: a query (an image of
 /// a later visit with at least one truly overlapping image in earlier
 /// visits) is found at k if one of its k nearest is such an image.
@@ -307,11 +317,7 @@ fn place_figures(report: &Report, out: &Path, truth: &Path) -> Result<PlaceFigur
     let ids = store.image_ids()?;
     let names: BTreeMap<ImageId, &String> = ids.iter().map(|(n, id)| (*id, n)).collect();
     let sessions: Vec<String> = store.sessions()?.into_iter().map(|s| s.name).collect();
-    // The descriptors the default options make: VLAD over the default learned features.
-    let PlaceSource::Vlad { clusters } = PlaceSource::default() else { anyhow::bail!("the default places are VLAD") };
-    let method = format!("vlad{clusters}-{}", LearnedMethod::default().name());
-    let descriptors = store.global_descriptors(&method)?;
-    ensure!(!descriptors.is_empty(), "{}: no {method} descriptors", out.display());
+    let descriptors = default_place_descriptors(&store, out)?;
     let mut truly: BTreeSet<(String, String)> = BTreeSet::new();
     for (a, b, overlap) in read_overlaps(truth)? {
         if overlap >= MIN_PLACE_OVERLAP {
@@ -383,8 +389,7 @@ fn roll_figures(out: &Path, tools: &ToolArgs) -> Result<RollFigures> {
         full_search_secs: 0.0,
         probe_search_secs: 0.0,
     };
-    let PlaceSource::Vlad { clusters } = PlaceSource::default() else { anyhow::bail!("the default places are VLAD") };
-    let places = store.global_descriptors(&format!("vlad{clusters}-{}", method.name()))?;
+    let places = default_place_descriptors(&store, out)?;
     let place_roll = |a: ImageId, b: ImageId| -> Option<Roll> {
         let database = [places.get(&(a, 0))?.as_slice()];
         let query: Vec<(Roll, &[f32])> =
