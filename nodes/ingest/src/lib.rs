@@ -26,6 +26,7 @@ use std::time::{Duration, Instant};
 
 use futures::StreamExt;
 use revisit_bag::Bag;
+use revisit_msgs::builtin_interfaces::Time;
 use revisit_msgs::nav_msgs::Odometry;
 use revisit_msgs::revisit_msgs::{Keyframe, SessionControl};
 use revisit_msgs::sensor_msgs::{CameraInfo, CompressedImage, Image};
@@ -154,7 +155,7 @@ pub async fn run(node: &mut Node) -> Result<Summary, NodeError> {
     let frames = std::mem::take(&mut camera.waiting);
     offer(node, &mut out, &mut ingest, (frames, true), &camera.info).await?;
     let events = ingest.stream.end();
-    publish(node, &mut out, events).await?;
+    publish(node, &mut out, events, ingest.last_stamp_ns).await?;
     ingest.drop_frames(&mut out, ingest.early.len());
     release(&mut out, true).await?;
     Ok(out.summary)
@@ -220,7 +221,9 @@ async fn take(
                     return Ok(());
                 }
             };
-            publish(node, out, events).await?;
+            let start_ns = u64::try_from(message.header.stamp.as_nanos()).ok().filter(|&ns| ns > 0);
+            let at_ns = if message.command == SessionControl::START { start_ns } else { None };
+            publish(node, out, events, at_ns.or(ingest.last_stamp_ns)).await?;
             if message.command == SessionControl::START {
                 let early = ingest.early_frames(out, message.header.stamp.as_nanos());
                 offer(node, out, ingest, (early, false), &camera.info).await?;
@@ -395,18 +398,30 @@ async fn offer(
         };
         let pending = Pending { frame, time_ns, camera_info: camera_info.clone() };
         let events = ingest.stream.frame(pending, time_ns, &image);
-        publish(node, out, events).await?;
+        publish(node, out, events, Some(time_ns)).await?;
         ingest.stage.done(started.elapsed());
     }
     Ok(())
 }
 
-async fn publish(node: &Node, out: &mut Outputs, events: Vec<VisitEvent<Pending>>) -> Result<(), NodeError> {
+/// Publishes what the visit stream said: keyframes, and a visit's START and END stamped `at_ns`
+/// (the frame or control message that caused them; the node's time when there is none: a
+/// restarted node's `/clock` may not have come yet).
+async fn publish(
+    node: &Node,
+    out: &mut Outputs,
+    events: Vec<VisitEvent<Pending>>,
+    at_ns: Option<u64>,
+) -> Result<(), NodeError> {
+    let stamp = || match at_ns {
+        Some(ns) => Time::from_nanos(i64::try_from(ns).unwrap_or(i64::MAX)),
+        None => node.now(),
+    };
     for event in events {
         match event {
             VisitEvent::Started { visit } => {
                 out.visit_keyframes = 0;
-                say(node, &out.visits, SessionControl::START, &visit, 0).await?;
+                say(node, &out.visits, stamp(), SessionControl::START, &visit, 0).await?;
                 node.log(LogLevel::Info, &format!("visit {visit} started"));
                 out.summary.visits.push(visit);
             }
@@ -444,7 +459,7 @@ async fn publish(node: &Node, out: &mut Outputs, events: Vec<VisitEvent<Pending>
             }
             VisitEvent::Ended { visit, frames } => {
                 release(out, true).await?;
-                say(node, &out.visits, SessionControl::END, &visit, out.visit_keyframes).await?;
+                say(node, &out.visits, stamp(), SessionControl::END, &visit, out.visit_keyframes).await?;
                 node.log(LogLevel::Info, &format!("visit {visit} ended after {frames} frames"));
             }
         }
@@ -476,12 +491,13 @@ async fn release(out: &mut Outputs, all: bool) -> Result<(), NodeError> {
 async fn say(
     node: &Node,
     visits: &Publisher<SessionControl>,
+    stamp: Time,
     command: u8,
     visit: &str,
     keyframes: u32,
 ) -> Result<(), NodeError> {
     let message = SessionControl {
-        header: node.header(""),
+        header: revisit_msgs::std_msgs::Header { stamp, frame_id: String::new() },
         command,
         session: visit.to_owned(),
         source: node.full_name(),
