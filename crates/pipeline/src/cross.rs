@@ -9,17 +9,18 @@
 use std::collections::{BTreeMap, BTreeSet};
 use std::path::Path;
 
-use revisit_core::{pair_id, ImageId, LearnedFeatures, PairKind, Roll};
+use revisit_core::{pair_id, ImageId, Keypoint, LearnedFeatures, PairKind, Roll};
+use revisit_features::learned::LearnedExtractor;
 use revisit_matching::consistency::{self, CheckedPair, Verdict};
-use revisit_matching::{match_learned_pair, CrossOptions, LearnedPairMatch, RollSearch};
+use revisit_matching::{match_learned_pair, CrossOptions, LearnedPairMatch, LightGlue, RollSearch};
 use revisit_places::{nearest, Candidate, CandidateOptions, GlobalDescriptor, OnnxPlaces, Vlad, Vocabulary};
 use revisit_store::{CrossSide, PairRecord, Store};
 use serde::{Deserialize, Serialize};
 
-use crate::learned::Learned;
+use crate::learned::LearnedMethod;
 use crate::options::{CrossStrategy, PlaceSource};
 use crate::stages::LearnedKeypoints;
-use crate::{Cancel, PipelineError, Progress, Session, StageCounts};
+use crate::{workers, Cancel, PipelineError, Progress, Session, StageCounts};
 
 /// The rolls each image needs: roll 0 for the first visit (the reference),
 /// every roll the search tries for later ones.
@@ -65,29 +66,43 @@ fn onnx_error(path: &Path, error: revisit_onnx::OnnxError) -> PipelineError {
     PipelineError::Features { path: path.to_path_buf(), reason: error.to_string() }
 }
 
-/// Learned features of every image at the rolls it needs that the store lacks.
+/// Learned features of every image at the rolls it needs that the store
+/// lacks: an image at a time on each of `extractors` (one worker thread each),
+/// stored in image order.
 pub fn extract_learned(
     store: &mut Store,
-    learned: &mut Learned,
+    method: LearnedMethod,
+    extractors: &mut [LearnedExtractor],
     sessions: &[Session],
     search: RollSearch,
     progress: &dyn Progress,
     cancel: &Cancel,
 ) -> Result<StageCounts, PipelineError> {
-    let method = learned.method.name();
+    let method = method.name();
     let stored = store.learned_feature_keys(method)?;
     let (todo, counts) = missing_rolls(sessions, search, |id, roll| stored.contains(&(id, roll.degrees())));
-    tracing::info!(new = counts.done, reused = counts.reused, method, "learned features");
+    tracing::info!(new = counts.done, reused = counts.reused, method, workers = extractors.len(), "learned features");
     progress.start("learned features", counts.done as u64);
-    for (id, path, rolls) in todo {
-        cancel.check()?;
-        let image = load_rgb(path)?;
-        for roll in rolls {
-            let features = learned.extract(&image, roll).map_err(|e| onnx_error(path, e))?;
-            store.write_learned_features(id, method, roll.degrees(), &features)?;
-            progress.advance();
-        }
-    }
+    workers::in_order(
+        store,
+        extractors,
+        todo.len(),
+        |_, _| Ok(()),
+        |extractor, i, ()| {
+            let (_, path, rolls) = &todo[i];
+            let image = load_rgb(path)?;
+            let extract = |roll: &Roll| Ok((*roll, extractor.extract(&image, *roll).map_err(|e| onnx_error(path, e))?));
+            rolls.iter().map(extract).collect::<Result<Vec<_>, PipelineError>>()
+        },
+        |store, i, by_roll| {
+            for (roll, features) in by_roll {
+                store.write_learned_features(todo[i].0, method, roll.degrees(), &features)?;
+                progress.advance();
+            }
+            Ok(())
+        },
+        cancel,
+    )?;
     progress.finish();
     Ok(counts)
 }
@@ -322,12 +337,47 @@ pub fn write_learned_pair(
     Ok(())
 }
 
+/// What one learned pair needs from the store: both images' learned features (the second at
+/// each roll the search tries) and every keypoint each image holds (SIFT and its registered
+/// learned ones).
+struct PairInputs {
+    a: LearnedFeatures,
+    b_by_roll: Vec<(Roll, LearnedFeatures)>,
+    own_a: Vec<Keypoint>,
+    own_b: Vec<Keypoint>,
+}
+
+fn read_pair_inputs(
+    store: &Store,
+    pair: &LearnedPair,
+    method: &str,
+    options: &CrossOptions,
+) -> Result<PairInputs, PipelineError> {
+    let rolls = match pair.kind {
+        PairKind::Cross => options.roll_search.rolls(),
+        PairKind::Intra => RollSearch::Off.rolls(),
+    };
+    Ok(PairInputs {
+        a: store.read_learned_features(pair.image_id1, method, 0)?,
+        b_by_roll: rolls
+            .iter()
+            .map(|r| Ok((*r, store.read_learned_features(pair.image_id2, method, r.degrees())?)))
+            .collect::<Result<_, PipelineError>>()?,
+        own_a: store.read_keypoints(pair.image_id1)?,
+        own_b: store.read_keypoints(pair.image_id2)?,
+    })
+}
+
 /// Matches every planned pair not yet in the store with the learned matcher
 /// ([`match_learned_pair`]: roll search on cross-visit pairs, anchoring,
-/// acceptance) and stores it.
+/// acceptance) and stores it: one pair at a time on each of `matchers` (one
+/// worker thread each), the store read and written on the calling thread, in
+/// plan order. A pair's result does not depend on how many workers there are.
+/// When cancelled or failing, the pairs already matched are stored.
 pub fn match_learned_pairs(
     store: &mut Store,
-    learned: &mut Learned,
+    method: LearnedMethod,
+    matchers: &mut [LightGlue],
     pairs: &[LearnedPair],
     options: &CrossOptions,
     progress: &dyn Progress,
@@ -337,28 +387,26 @@ pub fn match_learned_pairs(
     let todo: Vec<&LearnedPair> =
         pairs.iter().filter(|p| !finished.contains(&pair_id(p.image_id1, p.image_id2))).collect();
     let counts = StageCounts { done: todo.len(), reused: pairs.len() - todo.len() };
-    let method = learned.method.name();
-    tracing::info!(new = counts.done, reused = counts.reused, method, "learned matching");
+    let method = method.name();
+    tracing::info!(new = counts.done, reused = counts.reused, method, workers = matchers.len(), "learned matching");
     progress.start("learned matching", todo.len() as u64);
-    for pair in todo {
-        cancel.check()?;
-        let rolls = match pair.kind {
-            PairKind::Cross => options.roll_search.rolls(),
-            PairKind::Intra => RollSearch::Off.rolls(),
-        };
-        let a = store.read_learned_features(pair.image_id1, method, 0)?;
-        let b_by_roll: Vec<(Roll, LearnedFeatures)> = rolls
-            .iter()
-            .map(|r| Ok((*r, store.read_learned_features(pair.image_id2, method, r.degrees())?)))
-            .collect::<Result<_, PipelineError>>()?;
-        // Every keypoint an image holds: SIFT and its registered learned ones.
-        let own_a = store.read_keypoints(pair.image_id1)?;
-        let own_b = store.read_keypoints(pair.image_id2)?;
-        let matched = match_learned_pair(&mut learned.matcher, (&a, &own_a), (&b_by_roll, &own_b), pair.kind, options)
-            .map_err(|e| PipelineError::Matching { pair: (pair.image_id1, pair.image_id2), reason: e.to_string() })?;
-        write_learned_pair(store, pair, method, &matched)?;
-        progress.advance();
-    }
+    workers::in_order(
+        store,
+        matchers,
+        todo.len(),
+        |store, i| read_pair_inputs(store, todo[i], method, options),
+        |matcher, i, PairInputs { a, b_by_roll, own_a, own_b }| {
+            let pair = todo[i];
+            match_learned_pair(matcher, (&a, &own_a), (&b_by_roll, &own_b), pair.kind, options)
+                .map_err(|e| PipelineError::Matching { pair: (pair.image_id1, pair.image_id2), reason: e.to_string() })
+        },
+        |store, i, matched| {
+            write_learned_pair(store, todo[i], method, &matched)?;
+            progress.advance();
+            Ok(())
+        },
+        cancel,
+    )?;
     progress.finish();
     Ok(counts)
 }

@@ -54,6 +54,30 @@ impl LearnedMethod {
     }
 }
 
+/// The extractor of `method`, from the `models` folder.
+pub fn open_extractor(runtime: &Runtime, models: &Path, method: LearnedMethod) -> Result<LearnedExtractor, OnnxError> {
+    let [extractor_file, _] = method.model_files();
+    Ok(match method {
+        LearnedMethod::AlikedLightglue => {
+            LearnedExtractor::Aliked(Aliked::open(runtime, &models.join(extractor_file))?)
+        }
+        LearnedMethod::XfeatLighterglue => {
+            LearnedExtractor::XFeat(XFeat::open(runtime, &models.join(extractor_file), XFeatOptions::default())?)
+        }
+    })
+}
+
+/// The matcher of `method` (for the extractor's `descriptor_dim`), from the `models` folder.
+pub fn open_matcher(
+    runtime: &Runtime,
+    models: &Path,
+    method: LearnedMethod,
+    descriptor_dim: usize,
+) -> Result<LightGlue, OnnxError> {
+    let [_, matcher_file] = method.model_files();
+    LightGlue::open(runtime, &models.join(matcher_file), descriptor_dim)
+}
+
 /// A learned method, opened: its extractor and its matcher.
 pub struct Learned {
     pub method: LearnedMethod,
@@ -63,16 +87,8 @@ pub struct Learned {
 
 impl Learned {
     pub fn open(runtime: &Runtime, models: &Path, method: LearnedMethod) -> Result<Learned, OnnxError> {
-        let [extractor_file, matcher_file] = method.model_files();
-        let extractor = match method {
-            LearnedMethod::AlikedLightglue => {
-                LearnedExtractor::Aliked(Aliked::open(runtime, &models.join(extractor_file))?)
-            }
-            LearnedMethod::XfeatLighterglue => {
-                LearnedExtractor::XFeat(XFeat::open(runtime, &models.join(extractor_file), XFeatOptions::default())?)
-            }
-        };
-        let matcher = LightGlue::open(runtime, &models.join(matcher_file), extractor.descriptor_dim())?;
+        let extractor = open_extractor(runtime, models, method)?;
+        let matcher = open_matcher(runtime, models, method, extractor.descriptor_dim())?;
         Ok(Learned { method, extractor, matcher })
     }
 

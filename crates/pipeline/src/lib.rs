@@ -34,6 +34,7 @@ pub mod odometry;
 pub mod options;
 pub mod report;
 pub mod stages;
+pub mod workers;
 mod workspace;
 
 use std::path::PathBuf;

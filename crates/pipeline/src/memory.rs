@@ -1,7 +1,8 @@
 //! Peak resident memory of this process over a stretch of work, from Linux's
 //! `/proc/self`: the peak is reset before a stage (`clear_refs` 5, Linux 4.0
 //! and later) and read after it (`VmHWM`). Elsewhere, or where `/proc` is
-//! not writable, there is no figure.
+//! not writable, there is no figure. And the memory still available, which
+//! bounds how many models run side by side.
 
 /// Starts a new peak at the current resident memory.
 pub fn reset_peak() {
@@ -13,6 +14,14 @@ pub fn reset_peak() {
 pub fn peak_rss_mib() -> Option<f64> {
     let status = std::fs::read_to_string("/proc/self/status").ok()?;
     let line = status.lines().find_map(|l| l.strip_prefix("VmHWM:"))?;
+    let kib: f64 = line.trim().strip_suffix("kB")?.trim().parse().ok()?;
+    Some(kib / 1024.0)
+}
+
+/// The memory available for new work (`MemAvailable`), MiB, if known.
+pub fn available_mib() -> Option<f64> {
+    let info = std::fs::read_to_string("/proc/meminfo").ok()?;
+    let line = info.lines().find_map(|l| l.strip_prefix("MemAvailable:"))?;
     let kib: f64 = line.trim().strip_suffix("kB")?.trim().parse().ok()?;
     Some(kib / 1024.0)
 }

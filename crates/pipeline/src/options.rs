@@ -224,6 +224,10 @@ pub struct ReconstructOptions {
     pub verify: VerifyOptions,
     /// Learned pairs: roll search, anchoring, acceptance.
     pub learned_matching: CrossOptions,
+    /// Images (learned features) and pairs (learned matching) worked on at once, each on one
+    /// thread of ONNX Runtime (1: one at a time on every thread; 0, the default: one per core,
+    /// as many as the available memory holds). The results do not depend on it.
+    pub learned_workers: usize,
     pub places: PlaceOptions,
     pub cameras: CameraOptions,
     pub mapper: MapperOptions,

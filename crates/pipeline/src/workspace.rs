@@ -13,7 +13,7 @@ use revisit_matching::CrossMatch;
 use crate::cross::{self, LearnedPair, Places};
 use crate::export;
 use crate::ingest::SessionImages;
-use crate::learned::Learned;
+use crate::learned::{self, Learned};
 use crate::locate::Tools;
 use crate::mapping::{self, io, MappingOutcome};
 use crate::memory;
@@ -21,7 +21,7 @@ use crate::messages::FeaturesRecord;
 use crate::options::{CameraSpec, ReconstructOptions};
 use crate::report::{CameraReport, CrossReport, MappingReport, Report};
 use crate::stages::{self, LearnedKeypoints};
-use crate::{Cancel, PipelineError, Progress, StageCounts};
+use crate::{workers, Cancel, PipelineError, Progress, StageCounts};
 
 /// An image of a session in a workspace.
 #[derive(Clone, Debug, PartialEq)]
@@ -357,6 +357,27 @@ impl Workspace {
         Ok((runtime, learned))
     }
 
+    /// The learned models the `learned_workers` work with: `own` (on every core) for one worker,
+    /// else one each, opened by `open` into `pool` on a one-thread runtime. A model takes about
+    /// `mib_each` of memory as it runs.
+    fn workers<'a, T>(
+        &self,
+        own: &'a mut T,
+        pool: &'a mut Vec<T>,
+        mib_each: f64,
+        open: impl Fn(&revisit_onnx::Runtime, &Path) -> Result<T, revisit_onnx::OnnxError>,
+    ) -> Result<&'a mut [T], PipelineError> {
+        let workers = workers::count(self.options.learned_workers, mib_each);
+        if workers == 1 {
+            return Ok(std::slice::from_mut(own));
+        }
+        let runtime = self.tools.onnxruntime(1)?;
+        for _ in 0..workers {
+            pool.push(open(&runtime, &self.tools.models())?);
+        }
+        Ok(pool)
+    }
+
     /// Stage: learned features at the rolls each image needs.
     pub fn extract_learned(
         &mut self,
@@ -365,7 +386,12 @@ impl Workspace {
         cancel: &Cancel,
     ) -> Result<StageCounts, PipelineError> {
         let search = self.options.learned_matching.roll_search;
-        cross::extract_learned(&mut self.store, learned, &self.sessions, search, progress, cancel)
+        let (Learned { method, extractor, .. }, mut pool) = (learned, Vec::new());
+        let open = |runtime: &_, models: &_| learned::open_extractor(runtime, models, *method);
+        // ALIKED at 640x480: 1.3 GiB a run, measured.
+        let extractors = self.workers(extractor, &mut pool, 1400.0, open)?;
+        let method = *method;
+        cross::extract_learned(&mut self.store, method, extractors, &self.sessions, search, progress, cancel)
     }
 
     /// Stage: SIFT matching and verification of the pairs within visits (and
@@ -419,7 +445,21 @@ impl Workspace {
     ) -> Result<StageCounts, PipelineError> {
         let options = &self.options;
         let pairs = cross::plan_learned_pairs(options.cross, &self.sessions, places, &options.places.candidates);
-        cross::match_learned_pairs(&mut self.store, learned, &pairs, &options.learned_matching, progress, cancel)
+        let (Learned { method, extractor, matcher }, mut pool) = (learned, Vec::new());
+        let dim = extractor.descriptor_dim();
+        let open = |runtime: &_, models: &_| learned::open_matcher(runtime, models, *method, dim);
+        // LightGlue on 1024 keypoints a side: under 0.2 GiB a run, measured.
+        let matchers = self.workers(matcher, &mut pool, 400.0, open)?;
+        let method = *method;
+        cross::match_learned_pairs(
+            &mut self.store,
+            method,
+            matchers,
+            &pairs,
+            &options.learned_matching,
+            progress,
+            cancel,
+        )
     }
 
     /// Stage: one COLMAP run over the store (kept if the store did not

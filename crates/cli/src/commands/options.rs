@@ -127,6 +127,11 @@ pub struct OptionArgs {
     /// reporting them.
     #[arg(long)]
     set_aside_inconsistent: bool,
+    /// Images and pairs the learned models work on at once, each on one thread
+    /// of ONNX Runtime; 1 = one at a time on every thread; 0 = one per core, as
+    /// many as the available memory holds. The results do not depend on it.
+    #[arg(long, default_value_t = 0, value_name = "N")]
+    learned_workers: usize,
     /// Largest number of SIFT features per image (the strongest are kept).
     #[arg(long, default_value_t = 4096, value_name = "N")]
     max_features: usize,
@@ -203,6 +208,7 @@ impl OptionArgs {
         cross.verify.max_error_px = self.cross_max_error;
         cross.consistency_tolerance_deg = self.consistency_tolerance;
         cross.set_aside_inconsistent = self.set_aside_inconsistent;
+        options.learned_workers = self.learned_workers;
         options.places.candidates.top_k = self.vpr_top_k;
         options.places.candidates.max_distance = self.vpr_max_distance;
         if let Some(model) = &self.vpr_model {
