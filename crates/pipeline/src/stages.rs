@@ -2,12 +2,9 @@
 //! for `--cross sift`, across) visits, descriptor matching and verification.
 //! [`sift_features`] is the one-image entry point they are built on.
 
-use std::collections::{BTreeMap, HashMap};
-use std::sync::atomic::{AtomicBool, Ordering};
-use std::sync::mpsc;
+use std::collections::HashMap;
 
 use image::DynamicImage;
-use rayon::prelude::*;
 use revisit_core::{pair_id, Features, ImageId, Keypoint, LearnedFeatures, PairKind};
 use revisit_matching::{
     intra_session_pairs, match_descriptors, match_unit_descriptors, verify, MatchOptions, PairOptions, VerifyOptions,
@@ -16,7 +13,7 @@ use revisit_store::{PairRecord, Store};
 use serde::{Deserialize, Serialize};
 
 use crate::options::FeatureOptions;
-use crate::{Cancel, PipelineError, Progress, Session};
+use crate::{workers, Cancel, PipelineError, Progress, Session};
 
 /// What a stage did: new work, and finished work found in the store.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
@@ -25,10 +22,9 @@ pub struct StageCounts {
     pub reused: usize,
 }
 
-/// Runs `work` over `items` in parallel and hands each result to `write` on
+/// Runs `work` over `items` on every core and hands each result to `write` on
 /// the calling thread, in item order (so the store is written
-/// deterministically). Stops at the first error, or when `cancel` is set
-/// (after writing what is in flight); results already written stay.
+/// deterministically): [`workers::in_order`] with workers that hold nothing.
 fn parallel_in_order<T, R>(
     items: &[T],
     work: impl Fn(&T) -> Result<R, PipelineError> + Sync,
@@ -40,48 +36,13 @@ where
     T: Sync,
     R: Send,
 {
-    let failed = AtomicBool::new(false);
-    let (sender, receiver) = mpsc::channel::<(usize, Result<R, PipelineError>)>();
-    std::thread::scope(|scope| {
-        let failed = &failed;
-        let work = &work;
-        scope.spawn(move || {
-            items.par_iter().enumerate().for_each_with(sender, |sender, (index, item)| {
-                if failed.load(Ordering::Relaxed) {
-                    return;
-                }
-                let result = if cancel.is_cancelled() { Err(PipelineError::Cancelled) } else { work(item) };
-                // The receiver outlives the workers unless it stopped on an error.
-                let _ = sender.send((index, result));
-            });
-        });
-        let mut pending = BTreeMap::new();
-        let mut next = 0;
-        let mut cancelled = false;
-        for (index, result) in receiver {
-            if matches!(result, Err(PipelineError::Cancelled)) {
-                // Keep what is in flight: it is written below, once every worker stopped.
-                cancelled = true;
-                continue;
-            }
-            pending.insert(index, result);
-            while let Some(result) = pending.remove(&next) {
-                next += 1;
-                if let Err(err) = result.and_then(&mut write) {
-                    failed.store(true, Ordering::Relaxed);
-                    return Err(err);
-                }
-                progress.advance();
-            }
-        }
-        if cancelled {
-            for result in pending.into_values() {
-                result.and_then(&mut write)?;
-            }
-            return Err(PipelineError::Cancelled);
-        }
+    let mut cores = vec![(); workers::cores()];
+    let write = |(): &mut (), _, result| {
+        write(result)?;
+        progress.advance();
         Ok(())
-    })
+    };
+    workers::in_order(&mut (), &mut cores, items.len(), |(), _| Ok(()), |(), i, ()| work(&items[i]), write, cancel)
 }
 
 /// SIFT features of one decoded image, as every stage and node extracts them:

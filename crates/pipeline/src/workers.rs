@@ -7,12 +7,17 @@ use std::sync::{mpsc, Mutex};
 
 use crate::{Cancel, PipelineError};
 
+/// The cores this process may use.
+pub fn cores() -> usize {
+    std::thread::available_parallelism().map_or(1, |n| n.get())
+}
+
 /// How many workers `requested` means: 0 is one per core, as many as the
 /// available memory holds at `mib_each` a worker (at least one).
 pub fn count(requested: usize, mib_each: f64) -> usize {
     match requested {
         0 => {
-            let cores = std::thread::available_parallelism().map_or(1, |n| n.get());
+            let cores = cores();
             let fit = crate::memory::available_mib().map_or(cores, |mib| (mib / mib_each) as usize);
             cores.min(fit).max(1)
         }
@@ -24,9 +29,9 @@ pub fn count(requested: usize, mib_each: f64) -> usize {
 /// (one thread each). On the calling thread, with `store` (what both read and
 /// write: the store): `read(store, i)` gives item `i`'s input, in order, a
 /// little ahead of the workers; `write(store, i, output)` takes each output in
-/// item order (so what is stored does not depend on the number of workers). Stops reading at the first error or when
-/// `cancel` is set, writes the outputs before it that were in flight, and
-/// returns that error.
+/// item order (so what is stored does not depend on the number of workers).
+/// Stops reading at the first error or when `cancel` is set, writes the
+/// outputs before it that were in flight, and returns that error.
 pub fn in_order<S: ?Sized, W, I, O>(
     store: &mut S,
     workers: &mut [W],
