@@ -60,6 +60,8 @@ def main() -> int:
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--threads", type=int, default=-1)
     parser.add_argument("--min-model-size", type=int, default=10)
+    parser.add_argument("--min-pose-inliers", type=int, default=30,
+                        help="fewest 2D-3D inliers with which an image joins a model")
     parser.add_argument("--constant-cameras", default="",
                         help="comma-separated ids of calibrated cameras, whose intrinsics are held fixed")
     args = parser.parse_args()
@@ -82,6 +84,7 @@ def main() -> int:
         options.min_model_size = args.min_model_size
         options.mapper.random_seed = args.seed
         options.mapper.num_threads = args.threads
+        options.mapper.abs_pose_min_num_inliers = args.min_pose_inliers
         options.constant_cameras = constant
         options.mapper.constant_cameras = constant
         raw = args.output / "raw"

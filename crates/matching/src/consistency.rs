@@ -119,16 +119,17 @@ struct Offset {
     weight: f64,
 }
 
-/// The verdict on every cross-visit pair of `pairs` (in their order; pairs
-/// within a visit are the chains). `visit_of` gives each image's visit (its
-/// place in the order of visits); an image without one is not checked.
-pub fn check_cross_pairs(
-    pairs: &[CheckedPair],
-    visit_of: &BTreeMap<ImageId, usize>,
-    tolerance_deg: f64,
-) -> Vec<(usize, Verdict)> {
+/// What the pairs say together: each image's heading within its visit, the
+/// cross-visit pairs' roll verdicts, and the heading offsets their pairs imply
+/// between two connected parts of two visits, `(earlier part, later part)`.
+struct Votes {
+    headings: BTreeMap<ImageId, (ImageId, f64)>,
+    verdicts: Vec<(usize, Verdict)>,
+    groups: BTreeMap<(ImageId, ImageId), Vec<Offset>>,
+}
+
+fn votes(pairs: &[CheckedPair], visit_of: &BTreeMap<ImageId, usize>) -> Votes {
     let headings = headings(pairs, visit_of);
-    // (earlier part, later part) -> the offsets their pairs imply.
     let mut groups: BTreeMap<(ImageId, ImageId), Vec<Offset>> = BTreeMap::new();
     let mut verdicts = Vec::new();
     for (index, pair) in pairs.iter().enumerate() {
@@ -155,14 +156,30 @@ pub fn check_cross_pairs(
         groups.entry((root_e, root_l)).or_default().push(Offset { index, deg: offset, weight: pair.inliers as f64 });
         verdicts.push((index, Verdict::Consistent));
     }
+    Votes { headings, verdicts, groups }
+}
+
+/// The offset most of `members`' weight agrees on (within `tolerance_deg`),
+/// if it holds more than half of the weight and at least two pairs.
+fn consensus(members: &[Offset], tolerance_deg: f64) -> Option<f64> {
+    let offsets: Vec<f64> = members.iter().map(|m| m.deg).collect();
+    let weights: Vec<f64> = members.iter().map(|m| m.weight).collect();
+    let (consensus, support) = mode(&offsets, &weights, tolerance_deg);
+    let supporters = offsets.iter().filter(|o| angle_between(**o, consensus) <= tolerance_deg).count();
+    (supporters >= 2 && support > 0.5 * weights.iter().sum::<f64>()).then_some(consensus)
+}
+
+/// The verdict on every cross-visit pair of `pairs` (in their order; pairs
+/// within a visit are the chains). `visit_of` gives each image's visit (its
+/// place in the order of visits); an image without one is not checked.
+pub fn check_cross_pairs(
+    pairs: &[CheckedPair],
+    visit_of: &BTreeMap<ImageId, usize>,
+    tolerance_deg: f64,
+) -> Vec<(usize, Verdict)> {
+    let Votes { mut verdicts, groups, .. } = votes(pairs, visit_of);
     for members in groups.values() {
-        let offsets: Vec<f64> = members.iter().map(|m| m.deg).collect();
-        let weights: Vec<f64> = members.iter().map(|m| m.weight).collect();
-        let (consensus, support) = mode(&offsets, &weights, tolerance_deg);
-        let supporters = offsets.iter().filter(|o| angle_between(**o, consensus) <= tolerance_deg).count();
-        if supporters < 2 || support <= 0.5 * weights.iter().sum::<f64>() {
-            continue; // no consensus to hold the pairs to
-        }
+        let Some(consensus) = consensus(members, tolerance_deg) else { continue };
         for member in members.iter().filter(|m| angle_between(m.deg, consensus) > tolerance_deg) {
             if let Some(v) = verdicts.iter_mut().find(|(i, _)| *i == member.index) {
                 v.1 = Verdict::OffConsensus { offset_deg: member.deg, consensus_deg: consensus };
@@ -171,6 +188,38 @@ pub fn check_cross_pairs(
     }
     verdicts.sort_by_key(|v| v.0);
     verdicts
+}
+
+/// The turns that the verified pairs predict for pairs not matched yet: each
+/// image's heading within its visit, and the heading offset that the
+/// cross-visit pairs between two parts of two visits agree on (the
+/// consensus [`check_cross_pairs`] holds pairs to).
+#[derive(Clone, Debug, Default)]
+pub struct Predictor {
+    headings: BTreeMap<ImageId, (ImageId, f64)>,
+    offsets: BTreeMap<(ImageId, ImageId), f64>,
+}
+
+impl Predictor {
+    pub fn new(pairs: &[CheckedPair], visit_of: &BTreeMap<ImageId, usize>, tolerance_deg: f64) -> Predictor {
+        let Votes { headings, groups, .. } = votes(pairs, visit_of);
+        let offsets = groups.iter().filter_map(|(parts, m)| Some((*parts, consensus(m, tolerance_deg)?))).collect();
+        Predictor { headings, offsets }
+    }
+
+    /// The two connected parts a pair from `earlier` (an image of the earlier
+    /// visit) to `later` joins: the pairs whose offsets are voted together.
+    pub fn parts(&self, earlier: ImageId, later: ImageId) -> Option<(ImageId, ImageId)> {
+        Some((self.headings.get(&earlier)?.0, self.headings.get(&later)?.0))
+    }
+
+    /// The turn (degrees, as [`Turn::deg`]) from `earlier` to `later` that
+    /// the consensus of their parts implies; `None` without a consensus.
+    pub fn turn(&self, earlier: ImageId, later: ImageId) -> Option<f64> {
+        let (&(root_e, heading_e), &(root_l, heading_l)) = (self.headings.get(&earlier)?, self.headings.get(&later)?);
+        let offset = self.offsets.get(&(root_e, root_l))?;
+        Some(wrap(offset + heading_l - heading_e))
+    }
 }
 
 /// Each image's heading (degrees) within its visit, relative to the root of

@@ -19,7 +19,9 @@ use revisit_onnx::OnnxError;
 use serde::{Deserialize, Serialize};
 
 use crate::consistency::DEFAULT_CONSISTENCY_TOLERANCE_DEG;
-use crate::roll::{match_with_rolls, unrolled_keypoints, CrossMatch, RollSearch, DEFAULT_ROLL_MARGIN};
+use crate::roll::{
+    match_at_prediction, match_with_rolls, unrolled_keypoints, CrossMatch, Prediction, RollSearch, DEFAULT_ROLL_MARGIN,
+};
 use crate::verify::{verify, VerifyOptions};
 use crate::{anchor_keypoints, check_range, LightGlue, OptionsError};
 
@@ -36,8 +38,8 @@ pub const DEFAULT_ANCHOR_RADIUS_PX: f32 = 1.5;
 #[serde(default, deny_unknown_fields)]
 pub struct CrossOptions {
     /// How the roll of the second image of a cross-visit pair is chosen.
-    /// Default: the probe ([`RollSearch::DEFAULT`]). Pairs within a visit are
-    /// matched at roll 0.
+    /// Default: the probe ([`RollSearch::DEFAULT`]). Pairs within a visit
+    /// are matched at roll 0.
     pub roll_search: RollSearch,
     /// The winning roll's inliers must be at least this many times the
     /// runner-up's, or the pair is rejected (and a probe falls back to the
@@ -92,6 +94,8 @@ pub struct LearnedPairMatch {
     pub inliers_by_roll: Vec<(Roll, usize)>,
     /// Whether a probe was inconclusive and the full search ran.
     pub fell_back: bool,
+    /// The roll predicted first, when the pair was matched at a prediction.
+    pub predicted: Option<Roll>,
     /// Each side's learned keypoints in its own unrolled frame, by learned
     /// index (the second side's at the winning roll).
     pub positions: [Vec<[f32; 2]>; 2],
@@ -111,20 +115,27 @@ impl LearnedPairMatch {
 
 /// Matches image `a` (learned features at roll 0, and every keypoint it
 /// already holds) with image `b` (learned features at each roll the search
-/// needs, and its keypoints): a cross-visit pair with `options.roll_search`,
-/// a pair within a visit at roll 0 only. Then [`accept`] judges the result.
+/// needs, and its keypoints): a cross-visit pair at the `predicted` roll
+/// when there is one ([`match_at_prediction`]), else with
+/// `options.roll_search`; a pair within a visit at roll 0 only. Then
+/// [`accept`] judges the result.
 pub fn match_learned_pair(
     matcher: &mut LightGlue,
     a: (&LearnedFeatures, &[Keypoint]),
     b: (&[(Roll, LearnedFeatures)], &[Keypoint]),
     kind: PairKind,
+    predicted: Option<&Prediction>,
     options: &CrossOptions,
 ) -> Result<LearnedPairMatch, OnnxError> {
-    let search = match kind {
-        PairKind::Cross => options.roll_search,
-        PairKind::Intra => RollSearch::Off,
+    let found = match (kind, predicted) {
+        (PairKind::Cross, Some(prediction)) => match_at_prediction(matcher, a.0, b.0, prediction, &options.verify)?,
+        (PairKind::Cross, None) => {
+            match_with_rolls(matcher, a.0, b.0, options.roll_search, options.roll_margin, &options.verify)?
+        }
+        (PairKind::Intra, _) => {
+            match_with_rolls(matcher, a.0, b.0, RollSearch::Off, options.roll_margin, &options.verify)?
+        }
     };
-    let found = match_with_rolls(matcher, a.0, b.0, search, options.roll_margin, &options.verify)?;
     Ok(judge(&found, a, b, options))
 }
 
@@ -189,6 +200,7 @@ pub fn accept(
         roll: found.roll,
         inliers_by_roll: found.inliers_by_roll.clone(),
         fell_back: found.fell_back,
+        predicted: found.predicted,
         positions,
         matches,
         inliers,
@@ -228,6 +240,7 @@ mod tests {
             geometry: TwoViewGeometry::degenerate(),
             inliers_by_roll,
             fell_back: false,
+            predicted: None,
         }
     }
 
@@ -279,5 +292,6 @@ mod tests {
         assert!(CrossOptions::default().check().is_ok());
         assert!(CrossOptions { roll_margin: 0.5, ..Default::default() }.check().is_err());
         assert!(CrossOptions { roll_search: RollSearch::Probe { budget: 4 }, ..Default::default() }.check().is_err());
+        assert!(CrossOptions { roll_search: RollSearch::Predict { budget: 4 }, ..Default::default() }.check().is_err());
     }
 }

@@ -14,12 +14,14 @@ pub mod roll;
 mod verify;
 
 pub use anchor::anchor_keypoints;
-pub use consistency::{check_cross_pairs, turn, CheckedPair, Turn, Verdict, DEFAULT_CONSISTENCY_TOLERANCE_DEG};
+pub use consistency::{
+    check_cross_pairs, turn, CheckedPair, Predictor, Turn, Verdict, DEFAULT_CONSISTENCY_TOLERANCE_DEG,
+};
 pub use cross::{match_learned_pair, CrossOptions, LearnedPairMatch, CROSS_MIN_INLIERS};
 pub use descriptors::{match_descriptors, match_unit_descriptors, MatchOptions};
 pub use lightglue::LightGlue;
 pub use pairs::{exhaustive_pairs, intra_session_pairs, PairOptions};
-pub use roll::{match_with_rolls, CrossMatch, RollSearch};
+pub use roll::{match_at_prediction, match_with_rolls, CrossMatch, Prediction, RollSearch};
 pub use verify::{verify, VerifyOptions};
 
 #[derive(Debug, thiserror::Error, PartialEq)]

@@ -127,7 +127,7 @@ fn roll_search_finds_the_roll_of_a_rotated_real_pair() {
         &mut matcher,
         &a,
         &b_by_roll,
-        RollSearch::DEFAULT,
+        RollSearch::PROBE,
         DEFAULT_ROLL_MARGIN,
         &verify,
     )

@@ -11,8 +11,8 @@ use std::path::Path;
 
 use revisit_core::{pair_id, ImageId, Keypoint, LearnedFeatures, PairKind, Roll};
 use revisit_features::learned::LearnedExtractor;
-use revisit_matching::consistency::{self, CheckedPair, Verdict};
-use revisit_matching::{match_learned_pair, CrossOptions, LearnedPairMatch, LightGlue, RollSearch};
+use revisit_matching::consistency::{self, CheckedPair, Predictor, Verdict};
+use revisit_matching::{match_learned_pair, CrossOptions, LearnedPairMatch, LightGlue, Prediction, RollSearch};
 use revisit_places::{nearest, Candidate, CandidateOptions, GlobalDescriptor, OnnxPlaces, Vlad, Vocabulary};
 use revisit_store::{CrossSide, PairRecord, Store};
 use serde::{Deserialize, Serialize};
@@ -236,6 +236,9 @@ pub struct LearnedPair {
     pub image_id1: ImageId,
     pub image_id2: ImageId,
     pub kind: PairKind,
+    /// Where image 1 stands among image 2's place-recognition candidates
+    /// (0: the nearest); 0 for a pair not chosen by place recognition.
+    pub rank: usize,
 }
 
 /// The pairs the learned matcher sees under `strategy`: every pair
@@ -250,7 +253,7 @@ pub fn plan_learned_pairs(
 ) -> Vec<LearnedPair> {
     let mut pairs = BTreeSet::new();
     let ids: Vec<Vec<ImageId>> = sessions.iter().map(|s| s.images.iter().map(|i| i.id).collect()).collect();
-    let pair = |a, b, kind| LearnedPair { image_id1: a, image_id2: b, kind };
+    let pair = |a, b, kind| LearnedPair { image_id1: a, image_id2: b, kind, rank: 0 };
     for (v, later) in ids.iter().enumerate() {
         let earlier: Vec<ImageId> = ids[..v].iter().flatten().copied().collect();
         match strategy {
@@ -268,7 +271,8 @@ pub fn plan_learned_pairs(
             CrossStrategy::Vpr => {
                 let Some(places) = places else { continue };
                 for (b, found) in place_candidates(sessions, places, candidates, v) {
-                    pairs.extend(found.into_iter().map(|(a, _)| pair(a, b, PairKind::Cross)));
+                    let ranked = found.into_iter().enumerate();
+                    pairs.extend(ranked.map(|(rank, (a, _))| LearnedPair { rank, ..pair(a, b, PairKind::Cross) }));
                 }
             }
         }
@@ -325,6 +329,7 @@ pub fn write_learned_pair(
         kind: pair.kind,
         method: method.to_owned(),
         roll_deg: matched.roll.degrees() as i32,
+        predicted_roll_deg: matched.predicted.map(|r| r.degrees() as i32),
         num_matches: matched.matches.len(),
         num_inliers: matched.inliers.len(),
     };
@@ -350,12 +355,14 @@ struct PairInputs {
 fn read_pair_inputs(
     store: &Store,
     pair: &LearnedPair,
+    predicted: Option<&Prediction>,
     method: &str,
     options: &CrossOptions,
 ) -> Result<PairInputs, PipelineError> {
-    let rolls = match pair.kind {
-        PairKind::Cross => options.roll_search.rolls(),
-        PairKind::Intra => RollSearch::Off.rolls(),
+    let rolls = match (pair.kind, predicted) {
+        (PairKind::Cross, Some(prediction)) => prediction.rolls(),
+        (PairKind::Cross, None) => options.roll_search.rolls().to_vec(),
+        (PairKind::Intra, _) => RollSearch::Off.rolls().to_vec(),
     };
     Ok(PairInputs {
         a: store.read_learned_features(pair.image_id1, method, 0)?,
@@ -368,17 +375,32 @@ fn read_pair_inputs(
     })
 }
 
+/// Cross-visit pairs matched with the roll search (probed), per two parts of
+/// two visits that have no consensus yet, before the next look for one: two
+/// true pairs make a consensus even with a wrong one among them.
+const BOOTSTRAP_PAIRS: usize = 3;
+
 /// Matches every planned pair not yet in the store with the learned matcher
 /// ([`match_learned_pair`]: roll search on cross-visit pairs, anchoring,
 /// acceptance) and stores it: one pair at a time on each of `matchers` (one
 /// worker thread each), the store read and written on the calling thread, in
 /// plan order. A pair's result does not depend on how many workers there are.
 /// When cancelled or failing, the pairs already matched are stored.
+///
+/// With [`RollSearch::Predict`], pairs within visits come first; then, in
+/// rounds, each cross-visit pair whose two visits' verified pairs agree on a
+/// heading offset is matched at the roll that offset predicts, and
+/// [`BOOTSTRAP_PAIRS`] more of each pair of visits (of connected parts) still
+/// without one are searched, the nearest places first (by
+/// [`LearnedPair::rank`]). The rounds depend only on what is stored, so the
+/// result is the same on any number of workers.
+#[allow(clippy::too_many_arguments)] // the stage's inputs, each needed
 pub fn match_learned_pairs(
     store: &mut Store,
     method: LearnedMethod,
     matchers: &mut [LightGlue],
     pairs: &[LearnedPair],
+    sessions: &[Session],
     options: &CrossOptions,
     progress: &dyn Progress,
     cancel: &Cancel,
@@ -390,25 +412,130 @@ pub fn match_learned_pairs(
     let method = method.name();
     tracing::info!(new = counts.done, reused = counts.reused, method, workers = matchers.len(), "learned matching");
     progress.start("learned matching", todo.len() as u64);
-    workers::in_order(
-        store,
-        matchers,
-        todo.len(),
-        |store, i| read_pair_inputs(store, todo[i], method, options),
-        |matcher, i, PairInputs { a, b_by_roll, own_a, own_b }| {
-            let pair = todo[i];
-            match_learned_pair(matcher, (&a, &own_a), (&b_by_roll, &own_b), pair.kind, options)
-                .map_err(|e| PipelineError::Matching { pair: (pair.image_id1, pair.image_id2), reason: e.to_string() })
-        },
-        |store, i, matched| {
-            write_learned_pair(store, todo[i], method, &matched)?;
-            progress.advance();
-            Ok(())
-        },
-        cancel,
-    )?;
+    let mut run = |store: &mut Store, batch: &[(&LearnedPair, Option<Prediction>)]| {
+        workers::in_order(
+            store,
+            matchers,
+            batch.len(),
+            |store, i| read_pair_inputs(store, batch[i].0, batch[i].1.as_ref(), method, options),
+            |matcher, i, PairInputs { a, b_by_roll, own_a, own_b }| {
+                let (pair, predicted) = &batch[i];
+                match_learned_pair(matcher, (&a, &own_a), (&b_by_roll, &own_b), pair.kind, predicted.as_ref(), options)
+                    .map_err(|e| PipelineError::Matching {
+                        pair: (pair.image_id1, pair.image_id2),
+                        reason: e.to_string(),
+                    })
+            },
+            |store, i, matched| {
+                write_learned_pair(store, batch[i].0, method, &matched)?;
+                progress.advance();
+                Ok(())
+            },
+            cancel,
+        )
+    };
+    if !matches!(options.roll_search, RollSearch::Predict { .. }) {
+        let batch: Vec<_> = todo.into_iter().map(|p| (p, None)).collect();
+        run(store, &batch)?;
+    } else {
+        let (intra, mut waiting): (Vec<&LearnedPair>, Vec<&LearnedPair>) =
+            todo.into_iter().partition(|p| p.kind == PairKind::Intra);
+        // Searched first: the nearest places (stable: in plan order within a rank).
+        waiting.sort_by_key(|p| p.rank);
+        run(store, &intra.into_iter().map(|p| (p, None)).collect::<Vec<_>>())?;
+        let mut turns = PairTurns::new(sessions);
+        let (mut predicted, mut searched) = (0, 0);
+        while !waiting.is_empty() {
+            turns.update(store)?;
+            let predictor = Predictor::new(&turns.checked(), &turns.visit_of, options.consistency_tolerance_deg);
+            let mut batch = Vec::new();
+            let mut later = Vec::new();
+            let mut bootstrapping: BTreeMap<Option<(ImageId, ImageId)>, usize> = BTreeMap::new();
+            for pair in waiting {
+                let (a, b) = (pair.image_id1, pair.image_id2);
+                if let Some(turn_deg) = predictor.turn(a, b) {
+                    let tolerance_deg = options.consistency_tolerance_deg;
+                    batch.push((pair, Some(Prediction { turn_deg, tolerance_deg })));
+                    predicted += 1;
+                    continue;
+                }
+                let started = bootstrapping.entry(predictor.parts(a, b)).or_default();
+                if *started < BOOTSTRAP_PAIRS {
+                    *started += 1;
+                    batch.push((pair, None));
+                    searched += 1;
+                } else {
+                    later.push(pair);
+                }
+            }
+            tracing::debug!(pairs = batch.len(), waiting = later.len(), "cross-visit round");
+            run(store, &batch)?;
+            waiting = later;
+        }
+        tracing::info!(predicted, searched, "cross-visit rolls");
+    }
     progress.finish();
     Ok(counts)
+}
+
+/// The store's verified pairs as the consistency check sees them (the turn
+/// of their matches), each read once.
+struct PairTurns {
+    visit_of: BTreeMap<ImageId, usize>,
+    pairs: BTreeMap<u64, Option<CheckedPair>>,
+}
+
+impl PairTurns {
+    fn new(sessions: &[Session]) -> PairTurns {
+        let visit_of = sessions.iter().enumerate().flat_map(|(v, s)| s.images.iter().map(move |i| (i.id, v))).collect();
+        PairTurns { visit_of, pairs: BTreeMap::new() }
+    }
+
+    /// Reads the pairs stored since the last update.
+    fn update(&mut self, store: &Store) -> Result<(), PipelineError> {
+        // Read afresh each time: a learned pair stored since adds keypoints to its images.
+        let mut keypoints: BTreeMap<ImageId, Vec<[f64; 2]>> = BTreeMap::new();
+        for record in store.pair_records()? {
+            let (a, b) = (record.image_id1, record.image_id2);
+            let id = pair_id(a, b);
+            if self.pairs.contains_key(&id) {
+                continue;
+            }
+            if record.num_inliers == 0 || !self.visit_of.contains_key(&a) || !self.visit_of.contains_key(&b) {
+                self.pairs.insert(id, None);
+                continue;
+            }
+            for image in [a, b] {
+                if let std::collections::btree_map::Entry::Vacant(entry) = keypoints.entry(image) {
+                    let keypoints = store.read_keypoints(image)?;
+                    entry.insert(keypoints.iter().map(|k| [f64::from(k.x), f64::from(k.y)]).collect());
+                }
+            }
+            let matches = store.verified_matches(id)?;
+            let at = |image: ImageId, side: usize| -> Vec<[f64; 2]> {
+                matches.iter().filter_map(|m| keypoints[&image].get(m[side] as usize).copied()).collect()
+            };
+            let checked = consistency::turn(&at(a, 0), &at(b, 1)).map(|turn| CheckedPair {
+                image_id1: a,
+                image_id2: b,
+                kind: record.kind,
+                turn,
+                inliers: record.num_inliers,
+                // SIFT is matched at roll 0 whatever the turn: only a learned pair has a roll to agree with.
+                roll: match record.kind == PairKind::Cross && record.method != "sift" {
+                    true => u32::try_from(record.roll_deg).ok().and_then(Roll::from_degrees),
+                    false => None,
+                },
+            });
+            self.pairs.insert(id, checked);
+        }
+        Ok(())
+    }
+
+    /// Every verified pair with a turn, by pair id.
+    fn checked(&self) -> Vec<CheckedPair> {
+        self.pairs.values().flatten().copied().collect()
+    }
 }
 
 /// What [`check_consistency`] found among the verified cross-visit pairs.
@@ -437,42 +564,13 @@ pub fn check_consistency(
     tolerance_deg: f64,
     set_aside: bool,
 ) -> Result<ConsistencyCounts, PipelineError> {
-    let visit_of: BTreeMap<ImageId, usize> =
-        sessions.iter().enumerate().flat_map(|(v, s)| s.images.iter().map(move |i| (i.id, v))).collect();
     let names: BTreeMap<ImageId, String> =
         sessions.iter().flat_map(|s| &s.images).map(|i| (i.id, i.name.to_string())).collect();
-    let mut keypoints: BTreeMap<ImageId, Vec<[f64; 2]>> = BTreeMap::new();
-    let mut checked = Vec::new();
-    for record in store.pair_records()? {
-        let (a, b) = (record.image_id1, record.image_id2);
-        if record.num_inliers == 0 || !visit_of.contains_key(&a) || !visit_of.contains_key(&b) {
-            continue;
-        }
-        for id in [a, b] {
-            if let std::collections::btree_map::Entry::Vacant(entry) = keypoints.entry(id) {
-                entry.insert(store.read_keypoints(id)?.iter().map(|k| [f64::from(k.x), f64::from(k.y)]).collect());
-            }
-        }
-        let matches = store.verified_matches(pair_id(a, b))?;
-        let at = |id: ImageId, side: usize| -> Vec<[f64; 2]> {
-            matches.iter().filter_map(|m| keypoints[&id].get(m[side] as usize).copied()).collect()
-        };
-        let Some(turn) = consistency::turn(&at(a, 0), &at(b, 1)) else { continue };
-        // SIFT is matched at roll 0 whatever the turn: only a learned pair has a roll to agree with.
-        let roll = match record.kind == PairKind::Cross && record.method != "sift" {
-            true => u32::try_from(record.roll_deg).ok().and_then(Roll::from_degrees),
-            false => None,
-        };
-        checked.push(CheckedPair {
-            image_id1: a,
-            image_id2: b,
-            kind: record.kind,
-            turn,
-            inliers: record.num_inliers,
-            roll,
-        });
-    }
-    let verdicts = consistency::check_cross_pairs(&checked, &visit_of, tolerance_deg);
+    let mut turns = PairTurns::new(sessions);
+    turns.update(store)?;
+    let checked = turns.checked();
+    let visit_of = &turns.visit_of;
+    let verdicts = consistency::check_cross_pairs(&checked, visit_of, tolerance_deg);
     let mut aside = store.set_aside_pairs()?;
     let mut counts = ConsistencyCounts { checked: verdicts.len(), ..ConsistencyCounts::default() };
     for (index, verdict) in verdicts {

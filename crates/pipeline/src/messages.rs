@@ -175,6 +175,7 @@ pub fn cross_match(message: &CrossVisitMatches) -> Result<CrossMatch, String> {
         geometry: TwoViewGeometry::degenerate(),
         inliers_by_roll,
         fell_back: message.fell_back,
+        predicted: None,
     })
 }
 

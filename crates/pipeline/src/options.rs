@@ -300,6 +300,9 @@ impl ReconstructOptions {
         if self.mapper.min_model_size < 2 {
             return Err(fail("mapper.min_model_size")("must be at least 2".to_owned()));
         }
+        if self.mapper.min_pose_inliers < 4 {
+            return Err(fail("mapper.min_pose_inliers")("must be at least 4".to_owned()));
+        }
         if self.mapper.threads == 0 || self.mapper.threads < -1 {
             return Err(fail("mapper.threads")(format!(
                 "{} is neither -1 (all cores) nor positive",

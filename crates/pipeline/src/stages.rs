@@ -216,6 +216,7 @@ pub fn match_pairs(
                 kind: pair.kind,
                 method: method.clone(),
                 roll_deg: 0,
+                predicted_roll_deg: None,
                 num_matches: matches.len(),
                 num_inliers: geometry.inlier_matches.len(),
             };

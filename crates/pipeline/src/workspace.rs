@@ -456,6 +456,7 @@ impl Workspace {
             method,
             matchers,
             &pairs,
+            &self.sessions,
             &options.learned_matching,
             progress,
             cancel,

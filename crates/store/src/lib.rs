@@ -52,6 +52,9 @@ pub struct PairRecord {
     pub method: String,
     /// The roll applied to image 2 before matching, degrees (0 for SIFT).
     pub roll_deg: i32,
+    /// The roll the visits' other pairs predicted for image 2, degrees, when one was
+    /// (`roll_deg` is the one that won).
+    pub predicted_roll_deg: Option<i32>,
     pub num_matches: usize,
     pub num_inliers: usize,
 }
@@ -371,8 +374,9 @@ impl Store {
         let mut stmt = self
             .conn
             .prepare(
-                "SELECT image_id1, image_id2, kind, method, roll_deg, num_matches, num_inliers \
-                 FROM revisit_pairs ORDER BY pair_id",
+                "SELECT p.image_id1, p.image_id2, p.kind, p.method, p.roll_deg, p.num_matches, p.num_inliers, \
+                 r.predicted_roll_deg FROM revisit_pairs p \
+                 LEFT JOIN revisit_roll_predictions r ON r.pair_id = p.pair_id ORDER BY p.pair_id",
             )
             .map_err(|e| self.sql(e))?;
         let rows = stmt
@@ -384,6 +388,7 @@ impl Store {
                     kind: PairKind::parse(&kind).unwrap_or(PairKind::Intra),
                     method: r.get(3)?,
                     roll_deg: r.get(4)?,
+                    predicted_roll_deg: r.get(7)?,
                     num_matches: count(r.get(5)?),
                     num_inliers: count(r.get(6)?),
                 })
@@ -522,6 +527,13 @@ fn insert_pair(
             record.num_inliers as i64
         ],
     )?;
+    tx.execute("DELETE FROM revisit_roll_predictions WHERE pair_id = ?1", [id as i64])?;
+    if let Some(predicted) = record.predicted_roll_deg {
+        tx.execute(
+            "INSERT INTO revisit_roll_predictions (pair_id, predicted_roll_deg) VALUES (?1, ?2)",
+            params![id as i64, predicted],
+        )?;
+    }
     Ok(())
 }
 

@@ -64,6 +64,9 @@ CREATE TABLE IF NOT EXISTS revisit_pairs (
     roll_deg INTEGER NOT NULL,
     num_matches INTEGER NOT NULL,
     num_inliers INTEGER NOT NULL);
+CREATE TABLE IF NOT EXISTS revisit_roll_predictions (
+    pair_id INTEGER PRIMARY KEY NOT NULL,
+    predicted_roll_deg INTEGER NOT NULL);
 CREATE TABLE IF NOT EXISTS revisit_set_aside (
     pair_id INTEGER PRIMARY KEY NOT NULL,
     reason TEXT NOT NULL,

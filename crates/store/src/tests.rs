@@ -110,6 +110,7 @@ fn pairs_are_stored_in_colmap_order() {
         kind: PairKind::Intra,
         method: "sift".into(),
         roll_deg: 0,
+        predicted_roll_deg: Some(90),
         num_matches: 2,
         num_inliers: 1,
     };
@@ -120,6 +121,7 @@ fn pairs_are_stored_in_colmap_order() {
     assert_eq!(config, TwoViewConfig::Uncalibrated);
     assert_eq!(inliers, vec![[1, 4]]);
     assert_eq!(store.pair_records().unwrap()[0].image_id1, a.min(b));
+    assert_eq!(store.pair_records().unwrap()[0].predicted_roll_deg, Some(90));
 
     // Set aside, COLMAP no longer sees the pair; its inliers are kept and come back whole, also
     // after pycolmap has added its columns to COLMAP's table (as it does when it maps).
@@ -133,7 +135,8 @@ fn pairs_are_stored_in_colmap_order() {
     assert!(store.set_aside_pairs().unwrap().is_empty());
     // A pair matched again is judged afresh: nothing of it stays aside.
     store.set_aside(pair, "off consensus").unwrap();
-    store.write_pair(&record, &[[4, 1], [5, 2]], &geometry).unwrap();
+    store.write_pair(&PairRecord { predicted_roll_deg: None, ..record }, &[[4, 1], [5, 2]], &geometry).unwrap();
     assert!(store.set_aside_pairs().unwrap().is_empty());
+    assert_eq!(store.pair_records().unwrap()[0].predicted_roll_deg, None);
     assert!(store.two_view_geometry(pair).unwrap().is_some());
 }

@@ -108,7 +108,7 @@ pub fn run(args: Args) -> Result<()> {
             let mut options = CrossOptions {
                 roll_search: match (args.roll_search, args.full_search) {
                     (false, _) => RollSearch::Off,
-                    (true, false) => RollSearch::DEFAULT,
+                    (true, false) => RollSearch::PROBE,
                     (true, true) => RollSearch::Full,
                 },
                 ..CrossOptions::default()
@@ -121,7 +121,8 @@ pub fn run(args: Args) -> Result<()> {
                 .iter()
                 .map(|&roll| Ok((roll, learned.extract(&b, roll).with_context(|| args.image_b.display().to_string())?)))
                 .collect::<Result<_>>()?;
-            let pair = match_learned_pair(&mut learned.matcher, (&fa, &[]), (&fb, &[]), PairKind::Cross, &options)?;
+            let pair =
+                match_learned_pair(&mut learned.matcher, (&fa, &[]), (&fb, &[]), PairKind::Cross, None, &options)?;
             for (roll, inliers) in &pair.inliers_by_roll {
                 tracing::info!("roll {:>3}: {inliers} inliers", roll.degrees());
             }

@@ -408,7 +408,7 @@ fn roll_figures(out: &Path, tools: &ToolArgs) -> Result<RollFigures> {
         let full = learned.match_rolls(&a, &b_by_roll, RollSearch::Full, margin, &verify)?;
         figures.full_search_secs += start.elapsed().as_secs_f64();
         let start = Instant::now();
-        let probe = learned.match_rolls(&a, &b_by_roll, RollSearch::DEFAULT, margin, &verify)?;
+        let probe = learned.match_rolls(&a, &b_by_roll, RollSearch::PROBE, margin, &verify)?;
         figures.probe_search_secs += start.elapsed().as_secs_f64();
         let start = Instant::now();
         let chosen = b_by_roll.iter().find(|(r, _)| *r == full.roll).map_or(&b_by_roll[0], |x| x);
