@@ -390,7 +390,7 @@ const BOOTSTRAP_PAIRS: usize = 3;
 /// With [`RollSearch::Predict`], pairs within visits come first; then, in
 /// rounds, each cross-visit pair whose two visits' verified pairs agree on a
 /// heading offset is matched at the roll that offset predicts, and
-/// [`BOOTSTRAP_PAIRS`] more of each pair of visits (of connected parts) still
+/// a few (`BOOTSTRAP_PAIRS`) more of each pair of visits (of connected parts) still
 /// without one are searched, the nearest places first (by
 /// [`LearnedPair::rank`]). The rounds depend only on what is stored, so the
 /// result is the same on any number of workers.
