@@ -304,7 +304,7 @@ fn wrap(deg: f64) -> f64 {
 }
 
 /// The smallest angle (degrees, [0, 180]) between two directions.
-fn angle_between(a: f64, b: f64) -> f64 {
+pub(crate) fn angle_between(a: f64, b: f64) -> f64 {
     let d = wrap(a - b);
     d.min(360.0 - d)
 }

@@ -115,11 +115,8 @@ impl Prediction {
 
     /// Whether matched points turn as predicted.
     fn agrees(&self, points1: &[[f64; 2]], points2: &[[f64; 2]]) -> bool {
-        let apart = |a: f64, b: f64| {
-            let d = (a - b).rem_euclid(360.0);
-            d.min(360.0 - d)
-        };
-        crate::consistency::turn(points1, points2).is_some_and(|t| apart(t.deg, self.turn_deg) <= self.tolerance_deg)
+        crate::consistency::turn(points1, points2)
+            .is_some_and(|t| crate::consistency::angle_between(t.deg, self.turn_deg) <= self.tolerance_deg)
     }
 }
 
