@@ -1,7 +1,8 @@
 #!/usr/bin/env bash
 # Installs what Revisit needs on a fresh machine, unattended and idempotently:
-# the project's Python environment (.venv) with pinned packages. A second run
-# takes seconds. Rust comes with the machine (rustup's stable toolchain).
+# the project's Python environment (.venv) with pinned packages, and Debian's
+# Chromium (the comparison page's browser test). A second run takes seconds.
+# Rust comes with the machine (rustup's stable toolchain).
 set -euo pipefail
 cd "$(dirname "$0")/.."
 
@@ -14,10 +15,21 @@ want=$(sha256sum python/requirements.txt | cut -d' ' -f1)
 if [ -x .venv/bin/python ] && [ "$(cat "$stamp" 2>/dev/null)" = "$want" ]; then
   echo "setup: .venv is up to date"
 else
-  echo "setup: creating .venv (pycolmap, numpy, opencv, onnxruntime)"
+  echo "setup: creating .venv (pycolmap, numpy, opencv, onnxruntime, open3d, plotly)"
   [ -x .venv/bin/python ] || "$PYTHON" -m venv .venv
   .venv/bin/python -m pip install --quiet --disable-pip-version-check --upgrade pip
   .venv/bin/python -m pip install --quiet --disable-pip-version-check -r python/requirements.txt
-  .venv/bin/python -c "import pycolmap, cv2, numpy, onnxruntime; print('setup: pycolmap', pycolmap.__version__)"
+  .venv/bin/python -c "import pycolmap, cv2, numpy, onnxruntime, open3d, plotly; print('setup: pycolmap', pycolmap.__version__)"
   echo "$want" > "$stamp"
+fi
+
+if [ -x /usr/bin/chromium ]; then
+  echo "setup: chromium is installed"
+else
+  echo "setup: installing Debian's chromium"
+  sudo=""
+  [ "$(id -u)" = 0 ] || sudo=sudo
+  command -v apt-get >/dev/null || { echo "setup: chromium is missing and apt-get is not here; install Chromium as /usr/bin/chromium" >&2; exit 1; }
+  $sudo apt-get update -qq
+  DEBIAN_FRONTEND=noninteractive $sudo apt-get install -y -qq --no-install-recommends chromium >/dev/null
 fi

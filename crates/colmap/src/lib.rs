@@ -11,7 +11,8 @@ mod mapper;
 pub mod model;
 
 pub use mapper::{
-    check_python, run_mapper, Engine, Mapped, MapperError, MapperOptions, MapperRun, ModelSummary, PYTHON_ENV,
+    check_python, run_mapper, run_until_cancelled, Engine, Mapped, MapperError, MapperOptions, MapperRun, ModelSummary,
+    PYTHON_ENV,
 };
 
 pub use model::{

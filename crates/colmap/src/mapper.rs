@@ -1,9 +1,10 @@
 //! The mapper stage: one joint COLMAP run over a Revisit store, driven through
 //! pycolmap from the project's virtual environment.
 //!
-//! This is the only place in Revisit that starts Python. The entry point is
-//! embedded in the binary and written next to the output before each run, so
-//! an installed `revisit` needs nothing but a Python with pycolmap.
+//! The entry point is embedded in the binary and written next to the output
+//! before each run, so an installed `revisit` needs nothing but a Python with
+//! pycolmap. (The post-hoc baselines, `revisit-posthoc`, start Python the same
+//! way, through [`run_until_cancelled`].)
 
 use std::io::Read;
 use std::path::{Path, PathBuf};
@@ -42,7 +43,7 @@ pub enum MapperError {
 /// Runs `command` to the end and returns its output, or kills it and returns
 /// `None` once `cancelled` is set. Its output is read on threads, so that a
 /// chatty child never blocks on a full pipe.
-fn run_until_cancelled(mut command: Command, cancelled: &AtomicBool) -> std::io::Result<Option<Output>> {
+pub fn run_until_cancelled(mut command: Command, cancelled: &AtomicBool) -> std::io::Result<Option<Output>> {
     let mut child = command.stdout(Stdio::piped()).stderr(Stdio::piped()).spawn()?;
     let drain = |pipe: Option<Box<dyn Read + Send>>| {
         std::thread::spawn(move || {

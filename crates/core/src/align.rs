@@ -13,6 +13,10 @@ pub struct Similarity {
 }
 
 impl Similarity {
+    pub fn identity() -> Self {
+        Similarity { scale: 1.0, rotation: UnitQuaternion::identity(), translation: Vector3::zeros() }
+    }
+
     pub fn apply(&self, point: &Point3<f64>) -> Point3<f64> {
         Point3::from(self.rotation * point.coords * self.scale + self.translation)
     }

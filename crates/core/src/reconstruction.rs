@@ -78,6 +78,50 @@ impl Reconstruction {
             image.cam_from_world = Rigid3::new(rotation_new, centre_new.coords).inverse();
         }
     }
+
+    /// Models built apart, already in one frame, as one model: cameras, images and points
+    /// renumbered in the order given (ids from 1), tracks and observations following.
+    pub fn merge(parts: &[Reconstruction]) -> Reconstruction {
+        let mut merged = Reconstruction::default();
+        for part in parts {
+            let camera_ids: BTreeMap<CameraId, CameraId> =
+                part.cameras.keys().map(|&id| (id, merged.cameras.len() as CameraId + 1)).collect();
+            let image_ids: BTreeMap<ImageId, ImageId> =
+                part.images.keys().zip(merged.images.len() as ImageId + 1..).map(|(&id, new)| (id, new)).collect();
+            let point_ids: BTreeMap<Point3DId, Point3DId> = part
+                .points3d
+                .keys()
+                .zip(merged.points3d.len() as Point3DId + 1..)
+                .map(|(&id, new)| (id, new))
+                .collect();
+            for (id, camera) in &part.cameras {
+                let camera_id = camera_ids[id];
+                merged.cameras.insert(camera_id, Camera { camera_id, ..camera.clone() });
+            }
+            for (id, image) in &part.images {
+                let points2d = image
+                    .points2d
+                    .iter()
+                    .map(|o| Observation {
+                        xy: o.xy,
+                        point3d_id: o.point3d_id.and_then(|p| point_ids.get(&p).copied()),
+                    })
+                    .collect();
+                let image_id = image_ids[id];
+                let camera_id = camera_ids.get(&image.camera_id).copied().unwrap_or(image.camera_id);
+                merged.images.insert(image_id, Image { image_id, camera_id, points2d, ..image.clone() });
+            }
+            for (id, point) in &part.points3d {
+                let track = point
+                    .track
+                    .iter()
+                    .filter_map(|t| Some(TrackElement { image_id: *image_ids.get(&t.image_id)?, ..*t }))
+                    .collect();
+                merged.points3d.insert(point_ids[id], Point3D { track, ..point.clone() });
+            }
+        }
+        merged
+    }
 }
 
 #[cfg(test)]
@@ -108,5 +152,33 @@ mod tests {
         model.transform(2.5, &sim);
         let after = model.project(&model.images[&1], &model.points3d[&1].xyz).unwrap();
         assert!((before - after).norm() < 1e-9);
+    }
+
+    #[test]
+    fn merged_models_keep_every_track_and_observation() {
+        let part = |name: &str, x: f64| {
+            let mut model = Reconstruction::default();
+            model
+                .cameras
+                .insert(7, Camera::new(7, CameraModel::Pinhole, 64, 48, vec![50.0, 50.0, 32.0, 24.0]).unwrap());
+            let observation = Observation { xy: Point2::new(1.0, 2.0), point3d_id: Some(9) };
+            let image = Image {
+                image_id: 5,
+                camera_id: 7,
+                name: name.into(),
+                cam_from_world: Rigid3::identity(),
+                points2d: vec![observation],
+            };
+            model.images.insert(5, image);
+            let track = vec![TrackElement { image_id: 5, point2d_idx: 0 }];
+            model.points3d.insert(9, Point3D { xyz: Point3::new(x, 0.0, 1.0), rgb: [0; 3], error: 0.5, track });
+            model
+        };
+        let merged = Reconstruction::merge(&[part("a/1.png", 1.0), part("b/1.png", 2.0)]);
+        assert_eq!((merged.cameras.len(), merged.images.len(), merged.points3d.len()), (2, 2, 2));
+        let b = merged.image_by_name("b/1.png").unwrap();
+        assert_eq!((b.image_id, b.camera_id), (2, 2));
+        let point = &merged.points3d[&b.points2d[0].point3d_id.unwrap()];
+        assert_eq!((point.xyz.x, point.track[0].image_id), (2.0, 2));
     }
 }

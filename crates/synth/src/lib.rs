@@ -28,7 +28,10 @@ use serde::{Deserialize, Serialize};
 
 pub use render::{sun_dir, Appearance, Rendered, NO_DEPTH, NO_OBJECT};
 pub use scene::{ObjectKind, ObjectState, CELL_M, SEABED_ID, TEXEL_M};
-pub use survey::{plan, ImageTruth, NavigationSample, SessionIntrinsics, SessionPlan, Survey};
+pub use survey::{
+    plan, ImageTruth, NavigationFix, NavigationSample, SessionIntrinsics, SessionPlan, Survey, NAV_DRIFT_PER_M,
+    NAV_FIX_SIGMA_M,
+};
 pub use truth::{EvaluationOptions, EvaluationPair, Overlap};
 
 /// Smallest image the renderer accepts (pixels).

@@ -360,6 +360,23 @@ const DRIFT_SCALE_SIGMA: f64 = 0.01;
 const DRIFT_HEADING_SIGMA_DEG: f64 = 1.0;
 const DRIFT_WALK_SIGMA_M: f64 = 0.02;
 
+/// A visit's position fix error (USBL in shallow water, depth from a pressure sensor): standard
+/// deviation in x, y, z, metres.
+pub const NAV_FIX_SIGMA_M: [f64; 3] = [0.10, 0.10, 0.02];
+/// How a DVL-aided INS's position uncertainty grows: a fraction of the distance travelled
+/// (0.5-1% is typical; the dead-reckoned track's own drift is drawn with about this size).
+pub const NAV_DRIFT_PER_M: f64 = 0.01;
+
+/// One image's georeferenced navigation: position in the world frame (x east, y north, z up,
+/// metres) with its standard deviation per axis.
+#[derive(Clone, Debug, PartialEq)]
+pub struct NavigationFix {
+    /// The image's file name within its session.
+    pub file: String,
+    pub position_m: Vector3<f64>,
+    pub sigma_m: Vector3<f64>,
+}
+
 impl Survey {
     /// The odometry of session `s`: each image's true pose relative to the first, with a scale
     /// error, a heading error and a random walk (seeded by the survey's seed), as a DVL/INS would
@@ -384,6 +401,43 @@ impl Survey {
                 NavigationSample {
                     time_s: image.time_s,
                     odom_from_cam: Rigid3 { rotation: heading * world_from_cam.rotation, translation: position },
+                }
+            })
+            .collect()
+    }
+
+    /// Georeferenced navigation of session `s`, as an AUV's DVL-aided INS with a position fix
+    /// (USBL) reports it in the world frame: the dead-reckoned track of
+    /// [`Survey::navigation`] shifted by the fix's error (drawn once per visit), with each
+    /// position's standard deviation (the fix's, growing by [`NAV_DRIFT_PER_M`] of the distance
+    /// travelled).
+    pub fn navigation_fixes(&self, s: usize) -> Vec<NavigationFix> {
+        let Some(session) = self.sessions.get(s) else { return Vec::new() };
+        let mut rng = SplitMix64::stream(self.options.seed, 0x0F1_0000 + s as u64);
+        let fix_error = Vector3::new(
+            NAV_FIX_SIGMA_M[0] * rng.normal(),
+            NAV_FIX_SIGMA_M[1] * rng.normal(),
+            NAV_FIX_SIGMA_M[2] * rng.normal(),
+        );
+        let mut travelled_m = 0.0;
+        let mut previous: Option<Vector3<f64>> = None;
+        session
+            .images
+            .iter()
+            .zip(self.navigation(s))
+            .map(|(image, sample)| {
+                let position = sample.odom_from_cam.translation;
+                travelled_m += previous.map_or(0.0, |p| (position - p).norm());
+                previous = Some(position);
+                let drift = NAV_DRIFT_PER_M * travelled_m;
+                NavigationFix {
+                    file: image.file.clone(),
+                    position_m: position + fix_error,
+                    sigma_m: Vector3::new(
+                        NAV_FIX_SIGMA_M[0].hypot(drift),
+                        NAV_FIX_SIGMA_M[1].hypot(drift),
+                        NAV_FIX_SIGMA_M[2].hypot(0.2 * drift),
+                    ),
                 }
             })
             .collect()

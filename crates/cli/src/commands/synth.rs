@@ -5,7 +5,9 @@
 //! - `sessions/<name>/<name>_NNNN.png`: the images, one folder per session;
 //! - `truth/`: the COLMAP text model of the true cameras, `poses.csv`,
 //!   `intrinsics.json`, `survey.json`, `overlaps.csv`,
-//!   `evaluation_points_<A>-<B>.csv` per session pair, and `README.txt`.
+//!   `evaluation_points_<A>-<B>.csv` per session pair, and `README.txt`;
+//! - `nav/<name>.csv`: each image's navigation (position and its standard
+//!   deviation, as a vehicle's INS with a position fix reports it).
 
 use std::path::{Path, PathBuf};
 use std::time::Instant;
@@ -23,7 +25,7 @@ const MIN_LISTED_OVERLAP: f64 = 0.1;
 
 #[derive(clap::Args)]
 pub struct Args {
-    /// Output folder (created if missing): sessions/NAME/*.png and truth/.
+    /// Output folder (created if missing): sessions/NAME/*.png, truth/ and nav/NAME.csv (navigation).
     #[arg(long)]
     out: PathBuf,
     /// Number of visits.
@@ -129,6 +131,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     let render_secs = render_start.elapsed().as_secs_f64();
 
     write_truth(&survey, &truth_dir, args.eval_pairs)?;
+    write_navigation(&survey, &args.out.join("nav"))?;
     if args.bag {
         anyhow::ensure!(
             args.bag_rate.is_finite() && args.bag_rate > 0.0,
@@ -277,6 +280,21 @@ fn write_truth(survey: &Survey, dir: &Path, eval_pairs: usize) -> anyhow::Result
     Ok(())
 }
 
+/// `DIR/NAME.csv` per visit: each image's georeferenced navigation (a DVL-aided INS with a
+/// position fix), `image,x,y,z,sigma_x,sigma_y,sigma_z` in metres in the truth's world frame.
+fn write_navigation(survey: &Survey, dir: &Path) -> anyhow::Result<()> {
+    std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
+    for (s, session) in survey.sessions().iter().enumerate() {
+        let rows = survey.navigation_fixes(s).into_iter().map(|fix| {
+            let (p, sigma) = (fix.position_m, fix.sigma_m);
+            [fix.file, num(p.x), num(p.y), num(p.z), num(sigma.x), num(sigma.y), num(sigma.z)]
+        });
+        let text = csv_text(["image", "x", "y", "z", "sigma_x", "sigma_y", "sigma_z"], rows)?;
+        write_file(&dir.join(format!("{}.csv", session.name)), &text)?;
+    }
+    Ok(())
+}
+
 /// A JSON list of [u, v] pairs, e.g. `[[12.5, 33.0], [100.0, 7.25]]`.
 fn uv_list(points: &[[f64; 2]]) -> String {
     let round = |v: f64| (v * 1e6).round() / 1e6;
@@ -404,6 +422,13 @@ evaluation_points_A-B.csv
     that is unchanged between A and B, away from depth edges, and visible in
     img1 (depth test against img1's rendered depth); uv_groundtruth is the
     exact projection of the same 3D point into img1.
+
+../nav/SESSION.csv
+    image,x,y,z,sigma_x,sigma_y,sigma_z: each image's camera position as a
+    vehicle's navigation reports it (a DVL-aided INS drifting about 1% of the
+    distance travelled, shifted by one position-fix error per visit, 0.1 m
+    horizontally and 0.02 m in depth), in the world frame above, metres, with
+    its standard deviation per axis.
 ";
 
 #[cfg(test)]

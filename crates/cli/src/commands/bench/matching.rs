@@ -14,11 +14,11 @@ use std::time::Instant;
 
 use anyhow::{ensure, Context, Result};
 use revisit_core::{session_of, ImageId, PairKind, Roll};
-use revisit_eval::{median_epipolar_error_px, parse_points_csv, score, ScoreOptions, MAX_RIGHT_PAIR_ERROR_PX};
+use revisit_eval::{median_epipolar_error_px, MAX_RIGHT_PAIR_ERROR_PX};
 use revisit_matching::{CrossOptions, RollSearch};
 use revisit_pipeline::ingest::{scan_session, SessionSpec};
 use revisit_pipeline::learned::LearnedMethod;
-use revisit_pipeline::options::{CameraSpec, PlaceSource, ReconstructOptions};
+use revisit_pipeline::options::{PlaceSource, ReconstructOptions};
 use revisit_pipeline::{CrossStrategy, Report, Workspace};
 use revisit_places::{nearest, CandidateOptions};
 use revisit_store::Store;
@@ -136,14 +136,7 @@ struct Figures {
 pub fn run(args: Args) -> Result<()> {
     let sessions_dir = args.dataset.join("sessions");
     let truth_dir = args.dataset.join("truth");
-    let mut session_names: Vec<String> = std::fs::read_dir(&sessions_dir)
-        .with_context(|| format!("--dataset {}: no sessions/ folder", args.dataset.display()))?
-        .filter_map(|e| e.ok())
-        .filter(|e| e.path().is_dir())
-        .map(|e| e.file_name().to_string_lossy().into_owned())
-        .collect();
-    session_names.sort();
-    ensure!(session_names.len() >= 2, "--dataset {}: fewer than two sessions", args.dataset.display());
+    let session_names = super::session_names(&args.dataset)?;
     let work = args.work.clone().unwrap_or_else(|| args.dataset.join("bench"));
 
     let mut figures = Figures {
@@ -153,7 +146,7 @@ pub fn run(args: Args) -> Result<()> {
         roll_search: None,
         extraction: Vec::new(),
     };
-    let camera = calibrated_camera(&truth_dir)?;
+    let camera = super::calibrated_camera(&truth_dir)?;
     let cancel = crate::signals::cancel_on_signals()?;
     for &strategy in &args.strategies {
         let name = strategy.name();
@@ -181,30 +174,6 @@ pub fn run(args: Args) -> Result<()> {
 
     print_figures(&figures);
     super::write_json(args.json.as_deref(), &figures)
-}
-
-/// The truth's camera (intrinsics.json) when every session has the same one
-/// (the synthetic surveys' is calibrated).
-fn calibrated_camera(truth: &Path) -> Result<Option<CameraSpec>> {
-    let intrinsics = read_json(&truth.join("intrinsics.json"))?;
-    let cameras: BTreeSet<String> = intrinsics
-        .as_array()
-        .into_iter()
-        .flatten()
-        .filter_map(|c| {
-            let params: Vec<String> = c["params"].as_array()?.iter().map(|p| p.to_string()).collect();
-            Some(format!("{}:{}", c["model"].as_str()?, params.join(",")))
-        })
-        .collect();
-    match cameras.into_iter().collect::<Vec<_>>()[..] {
-        [ref one] => Ok(Some(one.parse().map_err(anyhow::Error::msg).context("truth/intrinsics.json")?)),
-        _ => Ok(None),
-    }
-}
-
-fn read_json(path: &Path) -> Result<serde_json::Value> {
-    let text = std::fs::read_to_string(path).with_context(|| path.display().to_string())?;
-    serde_json::from_str(&text).with_context(|| path.display().to_string())
 }
 
 fn strategy_figures(name: &str, report: &Report, out: &Path, truth: &Path) -> Result<StrategyFigures> {
@@ -272,20 +241,11 @@ fn mapped_pair_errors(store: &Store, truth: &Path) -> Result<Vec<f64>> {
 }
 
 /// Median cross-session reprojection error of `model` over every click file
-/// of the truth (exact synthetic clicks: scored at the click's own depth).
+/// of the truth, and the clicks scored.
 fn cross_error(model: &Path, truth: &Path) -> Result<(Option<f64>, usize)> {
     let model = revisit_colmap::read_model(model)?;
-    let mut pairs = Vec::new();
-    for entry in std::fs::read_dir(truth).with_context(|| truth.display().to_string())? {
-        let path = entry?.path();
-        if path.file_name().and_then(|n| n.to_str()).is_some_and(|n| n.starts_with("evaluation_points_")) {
-            let text = std::fs::read_to_string(&path).with_context(|| path.display().to_string())?;
-            pairs.extend(parse_points_csv(&text, &path.display().to_string())?.pairs);
-        }
-    }
-    let options = ScoreOptions { radius_px: 8.0, at_click_depth: true, ..ScoreOptions::default() };
-    let scores = score(std::slice::from_ref(&model), &pairs, &options);
-    Ok((scores.overall.median_px, scores.overall.scored))
+    let summary = super::score_clicks(&model, &super::truth_clicks(truth)?);
+    Ok((summary.median_px, summary.scored))
 }
 
 /// Truth overlaps between images of different sessions, by image name.

@@ -1,0 +1,414 @@
+//! `revisit bench compare`: the published comparison on one dataset with
+//! exact truth. Joint reconstructions (Revisit's default, joint SIFT, and two
+//! ablations) against the post-hoc baselines (each visit reconstructed alone,
+//! then aligned by ICP, by FPFH global registration, or to navigation), all
+//! scored by the same cross-visit click protocol (`revisit eval`'s), written
+//! to `REPORT/compare.json` and a self-contained `REPORT/index.html`.
+//!
+//! The published reef figures beside them: median cross-visit error 165 px
+//! after ICP, 77 px after BUFFER-X global registration, 3.65 px joint.
+
+use std::collections::BTreeMap;
+use std::path::{Path, PathBuf};
+use std::process::Command;
+use std::time::Instant;
+
+use anyhow::{bail, Context, Result};
+use revisit_core::{session_of, Reconstruction};
+use revisit_eval::ClickPair;
+use revisit_matching::RollSearch;
+use revisit_pipeline::ingest::{scan_session, SessionSpec};
+use revisit_pipeline::options::ReconstructOptions;
+use revisit_pipeline::{CrossStrategy, Workspace};
+use revisit_posthoc::{align_visits, parse_navigation_csv, AlignContext, Alignment, NavigationFix, VisitAlignment};
+use serde::Serialize;
+
+use crate::commands::models::ToolArgs;
+use crate::progress::Bars;
+
+/// The page's script (plotly), embedded and written to the report's work folder.
+const PAGE_SCRIPT: &str = include_str!("../../../python/revisit_compare_page.py");
+/// Points of each model drawn in the page's 3D views (every n-th, in id order).
+const CLOUD_POINTS: usize = 4000;
+/// The published median cross-visit errors (reef, px).
+const PUBLISHED: [(&str, f64); 3] = [("ICP", 165.0), ("BUFFER-X", 77.0), ("joint (the paper's method)", 3.65)];
+
+/// One method of the comparison.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+enum Method {
+    /// A joint reconstruction with these options.
+    Joint { name: &'static str, cross: CrossStrategy, roll_search: Option<RollSearch>, about: &'static str },
+    /// Each visit alone, aligned afterwards.
+    Posthoc(Alignment),
+}
+
+const METHODS: [Method; 7] = [
+    Method::Joint {
+        name: "revisit",
+        cross: CrossStrategy::Vpr,
+        roll_search: None,
+        about: "joint: place recognition + learned matching with roll search (Revisit's default)",
+    },
+    Method::Joint {
+        name: "joint-sift",
+        cross: CrossStrategy::Sift,
+        roll_search: None,
+        about: "joint: SIFT on every cross-visit pair",
+    },
+    Method::Joint {
+        name: "no-roll-search",
+        cross: CrossStrategy::Vpr,
+        roll_search: Some(RollSearch::Off),
+        about: "joint, ablation: Revisit's default matching at roll 0 only",
+    },
+    Method::Joint {
+        name: "no-places",
+        cross: CrossStrategy::LearnedCross,
+        roll_search: None,
+        about: "joint, ablation: the learned matcher on every cross-visit pair, no place recognition",
+    },
+    Method::Posthoc(Alignment::Icp),
+    Method::Posthoc(Alignment::Fpfh),
+    Method::Posthoc(Alignment::Navigation),
+];
+
+impl Method {
+    fn name(self) -> &'static str {
+        match self {
+            Method::Joint { name, .. } => name,
+            Method::Posthoc(Alignment::Icp) => "posthoc-icp",
+            Method::Posthoc(Alignment::Fpfh) => "posthoc-fpfh",
+            Method::Posthoc(Alignment::Navigation) => "posthoc-nav",
+        }
+    }
+
+    fn about(self) -> &'static str {
+        match self {
+            Method::Joint { about, .. } => about,
+            Method::Posthoc(Alignment::Icp) => "post-hoc: each visit alone, ICP (with scale) from the centroids",
+            Method::Posthoc(Alignment::Fpfh) => {
+                "post-hoc: each visit alone, FPFH + RANSAC global registration, then ICP"
+            }
+            Method::Posthoc(Alignment::Navigation) => {
+                "post-hoc: each visit alone, a similarity fitted to its navigation (INS + fix)"
+            }
+        }
+    }
+}
+
+fn method_names() -> impl clap::builder::TypedValueParser<Value = String> {
+    use clap::builder::{PossibleValue, PossibleValuesParser};
+    PossibleValuesParser::new(METHODS.map(|m| PossibleValue::new(m.name()).help(m.about())))
+}
+
+#[derive(clap::Args)]
+pub struct Args {
+    /// A dataset made by `revisit synth`: sessions/NAME/*.png, truth/ (with the
+    /// evaluation click files) and nav/NAME.csv (for posthoc-nav).
+    #[arg(long, value_name = "DIR")]
+    dataset: PathBuf,
+    /// Report folder: compare.json, index.html, the aligned post-hoc models
+    /// (models/METHOD, COLMAP binary) and the work folders (work/). Re-running
+    /// reuses the finished work.
+    #[arg(long, value_name = "REPORT")]
+    out: PathBuf,
+    /// The methods, in the order they run (default: all).
+    #[arg(long, value_delimiter = ',', value_parser = method_names(), value_name = "LIST")]
+    methods: Vec<String>,
+    /// SIFT features per image (every method).
+    #[arg(long, default_value_t = 1024, value_name = "N")]
+    max_features: usize,
+    /// The scaling benchmark's JSON (`bench matching --json`), drawn in the page when given.
+    #[arg(long, value_name = "FILE")]
+    scaling: Option<PathBuf>,
+    #[command(flatten)]
+    tools: ToolArgs,
+}
+
+/// A model's points for the page: a sample, each with the visit that saw it
+/// (an index into `sessions`), or -1 when several visits saw it.
+#[derive(Serialize)]
+struct Cloud {
+    sessions: Vec<String>,
+    points: Vec<[f32; 3]>,
+    visit: Vec<i32>,
+}
+
+#[derive(Serialize)]
+struct MethodFigures {
+    method: String,
+    about: String,
+    /// Why the method gave no scored model, if it did not.
+    failure: Option<String>,
+    /// Visits whose images are in the scored model, of all visits.
+    sessions_merged: usize,
+    sessions: usize,
+    median_px: Option<f64>,
+    mean_px: Option<f64>,
+    clicks_scored: usize,
+    clicks: usize,
+    seconds: f64,
+    /// The scored model (COLMAP binary).
+    model: Option<PathBuf>,
+    /// Post-hoc methods: where each visit went.
+    visits: Vec<VisitAlignment>,
+    /// Every scored click's error, px (for the histograms).
+    errors_px: Vec<f64>,
+    cloud: Option<Cloud>,
+}
+
+#[derive(Serialize)]
+struct Comparison {
+    dataset: PathBuf,
+    sessions: Vec<String>,
+    published_median_px: BTreeMap<&'static str, f64>,
+    methods: Vec<MethodFigures>,
+    /// The scaling benchmark's figures, as given by `--scaling`.
+    scaling: Option<serde_json::Value>,
+}
+
+/// Each visit reconstructed alone, shared by every post-hoc method.
+struct Alone {
+    models: Vec<(String, Option<Reconstruction>)>,
+    seconds: f64,
+}
+
+pub fn run(args: Args) -> Result<()> {
+    let sessions_dir = args.dataset.join("sessions");
+    let truth = args.dataset.join("truth");
+    let sessions = super::session_names(&args.dataset)?;
+    let clicks = super::truth_clicks(&truth)?;
+    let camera = super::calibrated_camera(&truth)?;
+    let scaling = match &args.scaling {
+        Some(path) => Some(super::read_json(path).with_context(|| format!("--scaling {}", path.display()))?),
+        None => None,
+    };
+    let methods: Vec<Method> = if args.methods.is_empty() {
+        METHODS.to_vec()
+    } else {
+        args.methods.iter().filter_map(|name| METHODS.iter().find(|m| m.name() == name).copied()).collect()
+    };
+    let work = args.out.join("work");
+    std::fs::create_dir_all(&work).with_context(|| format!("--out {}", args.out.display()))?;
+    let cancel = crate::signals::cancel_on_signals()?;
+    let options_for = |cross: CrossStrategy, roll_search: Option<RollSearch>| {
+        let mut options = ReconstructOptions { cross, ..ReconstructOptions::default() };
+        options.features.sift.max_num_features = args.max_features;
+        if let Some(roll_search) = roll_search {
+            options.learned_matching.roll_search = roll_search;
+        }
+        if let Some(camera) = &camera {
+            options.cameras.calibrated.insert(String::new(), camera.clone());
+        }
+        options
+    };
+    let reconstruct = |dir: &Path, options: ReconstructOptions, visits: &[String]| -> Result<Option<Reconstruction>> {
+        let mut workspace = Workspace::open(dir, options, args.tools.tools())?;
+        for session in visits {
+            workspace
+                .add_session(scan_session(&SessionSpec { name: session.clone(), dir: sessions_dir.join(session) })?)?;
+        }
+        let report = workspace.run(&Bars::default(), &cancel)?;
+        match &report.chosen_model {
+            Some(model) => Ok(Some(revisit_colmap::read_model(model).with_context(|| model.display().to_string())?)),
+            None => Ok(None),
+        }
+    };
+
+    let mut alone: Option<Alone> = None;
+    let mut figures = Vec::new();
+    for method in methods {
+        println!("== {}", method.name());
+        let (model, visits, mut failure, seconds) = match method {
+            Method::Joint { name, cross, roll_search, .. } => {
+                let started = Instant::now();
+                let model = reconstruct(&work.join(name), options_for(cross, roll_search), &sessions)
+                    .with_context(|| format!("method {name}"))?;
+                let failure = model.is_none().then(|| "COLMAP made no model".to_owned());
+                (model, Vec::new(), failure, started.elapsed().as_secs_f64())
+            }
+            Method::Posthoc(alignment) => {
+                if alone.is_none() {
+                    let started = Instant::now();
+                    let mut models = Vec::new();
+                    for session in &sessions {
+                        let dir = work.join("alone").join(session);
+                        let model =
+                            reconstruct(&dir, options_for(CrossStrategy::None, None), std::slice::from_ref(session))
+                                .with_context(|| format!("visit {session} alone"))?;
+                        models.push((session.clone(), model));
+                    }
+                    alone = Some(Alone { models, seconds: started.elapsed().as_secs_f64() });
+                }
+                let Some(alone) = &alone else { unreachable!("made above") };
+                let navigation = match alignment {
+                    Alignment::Navigation => match read_navigation(&args.dataset, &sessions)? {
+                        Ok(navigation) => navigation,
+                        Err(missing) => {
+                            let failure = format!("no navigation: {} does not exist", missing.display());
+                            figures.push(failed_row(method, failure, &sessions, &clicks, alone.seconds));
+                            continue;
+                        }
+                    },
+                    _ => Vec::new(),
+                };
+                let python = args.tools.tools().python().context("--python")?;
+                let context =
+                    AlignContext { python: &python, scratch: &work.join("register"), seed: 0, navigation: &navigation };
+                let started = Instant::now();
+                let aligned = align_visits(&alone.models, alignment, &context, cancel.flag())
+                    .with_context(|| format!("method {}", method.name()))?;
+                let seconds = alone.seconds + started.elapsed().as_secs_f64();
+                let failure = failed_visits(&aligned.visits);
+                let model = (!aligned.model.images.is_empty()).then_some(aligned.model);
+                (model, aligned.visits, failure, seconds)
+            }
+        };
+        let mut row = MethodFigures { visits, ..failed_row(method, String::new(), &sessions, &clicks, seconds) };
+        if let Some(model) = model {
+            let dir = args.out.join("models").join(method.name());
+            std::fs::create_dir_all(&dir).with_context(|| format!("creating {}", dir.display()))?;
+            revisit_colmap::write_binary(&model, &dir).with_context(|| format!("writing {}", dir.display()))?;
+            let summary = super::score_clicks(&model, &clicks);
+            row.sessions_merged =
+                sessions.iter().filter(|s| model.images.values().any(|i| session_of(&i.name) == *s)).count();
+            if row.sessions_merged < sessions.len() && failure.is_none() {
+                failure = Some(format!("{} of {} visits in one model", row.sessions_merged, sessions.len()));
+            }
+            row.median_px = summary.median_px;
+            row.mean_px = summary.mean_px;
+            row.clicks_scored = summary.scored;
+            row.errors_px = summary.errors_px;
+            row.cloud = Some(cloud(&model, &sessions));
+            row.model = Some(dir);
+        }
+        row.failure = failure.or_else(|| row.model.is_none().then(|| "no model".to_owned()));
+        figures.push(row);
+    }
+    let comparison = Comparison {
+        dataset: args.dataset.clone(),
+        sessions,
+        published_median_px: PUBLISHED.into_iter().collect(),
+        methods: figures,
+        scaling,
+    };
+    print_table(&comparison);
+    let json = args.out.join("compare.json");
+    std::fs::write(&json, serde_json::to_string(&comparison)? + "\n").with_context(|| json.display().to_string())?;
+    write_page(&args, &json)?;
+    Ok(())
+}
+
+/// A method's row before scoring: no model, `failure` as given.
+fn failed_row(
+    method: Method,
+    failure: String,
+    sessions: &[String],
+    clicks: &[ClickPair],
+    seconds: f64,
+) -> MethodFigures {
+    MethodFigures {
+        method: method.name().to_owned(),
+        about: method.about().to_owned(),
+        failure: Some(failure),
+        sessions_merged: 0,
+        sessions: sessions.len(),
+        median_px: None,
+        mean_px: None,
+        clicks_scored: 0,
+        clicks: clicks.iter().map(|p| p.uv_clicked.len()).sum(),
+        seconds,
+        model: None,
+        visits: Vec::new(),
+        errors_px: Vec::new(),
+        cloud: None,
+    }
+}
+
+/// "s2: reason; s3: reason" for the visits that were not aligned.
+fn failed_visits(visits: &[VisitAlignment]) -> Option<String> {
+    let failed: Vec<String> =
+        visits.iter().filter_map(|v| v.failure.as_ref().map(|reason| format!("{}: {reason}", v.session))).collect();
+    (!failed.is_empty()).then(|| failed.join("; "))
+}
+
+/// Every visit's `DATASET/nav/NAME.csv`, or the first that does not exist.
+fn read_navigation(dataset: &Path, sessions: &[String]) -> Result<Result<Vec<NavigationFix>, PathBuf>> {
+    let mut fixes = Vec::new();
+    for session in sessions {
+        let path = dataset.join("nav").join(format!("{session}.csv"));
+        if !path.exists() {
+            return Ok(Err(path));
+        }
+        let text = std::fs::read_to_string(&path).with_context(|| path.display().to_string())?;
+        fixes.extend(parse_navigation_csv(&text, session, &path.display().to_string())?);
+    }
+    Ok(Ok(fixes))
+}
+
+/// About [`CLOUD_POINTS`] of `model`'s points, each with its visit.
+fn cloud(model: &Reconstruction, sessions: &[String]) -> Cloud {
+    let step = model.points3d.len().div_ceil(CLOUD_POINTS).max(1);
+    let mut cloud = Cloud { sessions: sessions.to_vec(), points: Vec::new(), visit: Vec::new() };
+    for point in model.points3d.values().step_by(step) {
+        let mut visits = point.track.iter().filter_map(|t| {
+            let image = model.images.get(&t.image_id)?;
+            sessions.iter().position(|s| s == session_of(&image.name))
+        });
+        let first = visits.next().map_or(-1, |v| v as i32);
+        let visit = if visits.all(|v| v as i32 == first) { first } else { -1 };
+        cloud.points.push(point.xyz.coords.map(|c| c as f32).into());
+        cloud.visit.push(visit);
+    }
+    cloud
+}
+
+fn print_table(c: &Comparison) {
+    println!();
+    println!(
+        "{:<16} {:>10} {:>10} {:>9} {:>8} {:>9}  failure",
+        "method", "median px", "mean px", "clicks", "visits", "seconds"
+    );
+    let px = |v: Option<f64>| v.map_or("-".to_owned(), |v| format!("{v:.2}"));
+    for m in &c.methods {
+        println!(
+            "{:<16} {:>10} {:>10} {:>9} {:>8} {:>9.1}  {}",
+            m.method,
+            px(m.median_px),
+            px(m.mean_px),
+            format!("{}/{}", m.clicks_scored, m.clicks),
+            format!("{}/{}", m.sessions_merged, m.sessions),
+            m.seconds,
+            m.failure.as_deref().unwrap_or("")
+        );
+    }
+    let published: Vec<String> = PUBLISHED.iter().map(|(name, px)| format!("{name} {px} px")).collect();
+    println!("published (reef, median cross-visit error): {}", published.join(", "));
+    let median = |name: &str| c.methods.iter().find(|m| m.method == name).and_then(|m| m.median_px);
+    if let Some(revisit) = median("revisit") {
+        for m in c.methods.iter().filter(|m| m.method.starts_with("posthoc")) {
+            if let Some(baseline) = m.median_px {
+                println!("{} / revisit median error: {:.1}x (goal >= 10x)", m.method, baseline / revisit.max(1e-9));
+            }
+        }
+    }
+}
+
+/// `REPORT/index.html`, drawn by the embedded plotly script from compare.json.
+fn write_page(args: &Args, json: &Path) -> Result<()> {
+    let script = args.out.join("work").join("revisit_compare_page.py");
+    std::fs::write(&script, PAGE_SCRIPT).with_context(|| script.display().to_string())?;
+    let python = args.tools.tools().python().context("--python")?;
+    let page = args.out.join("index.html");
+    let output = Command::new(&python)
+        .arg(&script)
+        .arg(json)
+        .arg(&page)
+        .output()
+        .with_context(|| format!("could not start {}", python.display()))?;
+    if !output.status.success() {
+        bail!("{} {} failed: {}", python.display(), script.display(), String::from_utf8_lossy(&output.stderr).trim());
+    }
+    println!("wrote: {} and {}", json.display(), page.display());
+    Ok(())
+}

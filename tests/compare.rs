@@ -1,0 +1,126 @@
+//! `revisit bench compare` end to end: on a synthetic reef with strong change,
+//! Revisit's joint reconstruction against the post-hoc baselines, scored by the
+//! click protocol, and the report page as a browser (Debian's Chromium,
+//! headless) draws it.
+
+mod common;
+
+use std::path::Path;
+use std::process::Command;
+
+use common::{read_json, run_err, run_ok};
+
+/// The visits' colours in the page's 3D views (`revisit_compare_page.py`'s palette).
+const VISIT_COLOURS: [[u8; 3]; 2] = [[0xe6, 0x19, 0x4b], [0x3c, 0xb4, 0x4b]];
+
+fn chromium() -> &'static str {
+    let path = "/usr/bin/chromium";
+    assert!(Path::new(path).exists(), "{path} is missing: scripts/setup.sh installs Debian's chromium");
+    path
+}
+
+/// Chromium, headless, on a closed network (the page must need nothing from it).
+fn browser(profile: &Path) -> Command {
+    let mut command = Command::new(chromium());
+    command.args([
+        "--headless",
+        "--no-sandbox",
+        "--disable-gpu",
+        "--enable-unsafe-swiftshader",
+        "--disable-quic",
+        "--no-first-run",
+        "--disable-background-networking",
+        "--disable-component-update",
+        "--disable-sync",
+        "--virtual-time-budget=10000",
+    ]);
+    command.arg(format!("--user-data-dir={}", profile.display()));
+    command
+}
+
+#[test]
+fn joint_reconstruction_beats_every_post_hoc_baseline_and_the_page_shows_it() {
+    let dir = tempfile::tempdir().unwrap();
+    let reef = dir.path().join("reef");
+    let reef_arg = reef.to_str().unwrap();
+    run_ok(&[
+        "synth",
+        "--out",
+        reef_arg,
+        "--sessions",
+        "2",
+        "--images-per-session",
+        "10",
+        "--change",
+        "strong",
+        "--seed",
+        "3",
+        "--eval-pairs",
+        "20",
+    ]);
+    let report = dir.path().join("report");
+    let report_arg = report.to_str().unwrap();
+    let methods = "revisit,joint-sift,posthoc-icp,posthoc-fpfh,posthoc-nav";
+    let printed = run_ok(&["bench", "compare", "--dataset", reef_arg, "--out", report_arg, "--methods", methods]);
+    println!("{}", String::from_utf8_lossy(&printed.stdout));
+
+    let comparison = read_json(&report.join("compare.json"));
+    let rows = comparison["methods"].as_array().unwrap();
+    let names: Vec<&str> = rows.iter().map(|m| m["method"].as_str().unwrap()).collect();
+    assert_eq!(names.join(","), methods, "every method has its row, failed or not, in order");
+    let row = |name: &str| rows.iter().find(|m| m["method"] == name).unwrap();
+    let revisit = row("revisit");
+    assert_eq!(revisit["failure"], serde_json::Value::Null);
+    assert_eq!(revisit["sessions_merged"], 2, "both visits in Revisit's one model");
+    let revisit_px = revisit["median_px"].as_f64().unwrap();
+    assert!(revisit_px < 3.0, "Revisit's median cross-visit error {revisit_px} px");
+    for baseline in ["posthoc-icp", "posthoc-fpfh", "posthoc-nav"] {
+        let row = row(baseline);
+        match row["median_px"].as_f64() {
+            Some(px) => assert!(px >= 10.0 * revisit_px, "{baseline}: {px} px, not 10x Revisit's {revisit_px} px"),
+            None => assert!(row["failure"].is_string(), "{baseline} gave no figure and says no failure"),
+        }
+        // The aligned model is a COLMAP model `revisit eval` reads like any other.
+        if let Some(model) = row["model"].as_str() {
+            let points = reef.join("truth/evaluation_points_s1-s2.csv");
+            run_ok(&["eval", "--model", model, "--points", points.to_str().unwrap(), "--radius-px", "8"]);
+        }
+    }
+
+    // The page: self-contained, its table holds every method, and its 3D views draw both visits.
+    let page = report.join("index.html");
+    let html = std::fs::read_to_string(&page).unwrap();
+    assert!(!html.contains("src=\"http"), "the page loads nothing from the web");
+    let profile = dir.path().join("profile");
+    let dom = browser(&profile).arg("--dump-dom").arg(&page).output().unwrap();
+    let dom = String::from_utf8_lossy(&dom.stdout);
+    assert!(dom.contains("<table id=\"methods\">"), "no table in the rendered page");
+    for name in methods.split(',') {
+        assert!(dom.contains(&format!("<b>{name}</b>")), "the table has no row for {name}");
+    }
+    let shot = dir.path().join("page.png");
+    let status = browser(&profile)
+        .arg("--window-size=1400,3000")
+        .arg(format!("--screenshot={}", shot.display()))
+        .arg(&page)
+        .status()
+        .unwrap();
+    assert!(status.success());
+    let pixels = image::open(&shot).unwrap().to_rgb8();
+    let count = |colour: [u8; 3]| pixels.pixels().filter(|p| p.0 == colour).count();
+    let area = (pixels.width() * pixels.height()) as usize;
+    assert!(count([255, 255, 255]) < area * 9 / 10, "the screenshot is blank");
+    for (visit, colour) in VISIT_COLOURS.into_iter().enumerate() {
+        let drawn = count(colour);
+        assert!(drawn > 500, "visit {} has {drawn} pixels of its colour in the 3D views", visit + 1);
+    }
+}
+
+#[test]
+fn a_dataset_without_sessions_is_named() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("report");
+    let missing = dir.path().join("nothing");
+    let stderr = run_err(&["bench", "compare", "--dataset", missing.to_str().unwrap(), "--out", out.to_str().unwrap()]);
+    assert!(stderr.contains(&format!("--dataset {}: no sessions/ folder", missing.display())), "{stderr}");
+}
