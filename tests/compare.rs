@@ -73,11 +73,14 @@ fn joint_reconstruction_beats_every_post_hoc_baseline_and_the_page_shows_it() {
     assert_eq!(revisit["failure"], serde_json::Value::Null);
     assert_eq!(revisit["sessions_merged"], 2, "both visits in Revisit's one model");
     let revisit_px = revisit["median_px"].as_f64().unwrap();
-    assert!(revisit_px < 3.0, "Revisit's median cross-visit error {revisit_px} px");
+    // Joint SIFT links nothing across strong change: marked as failed to merge, not dropped.
+    assert_eq!(row("joint-sift")["failure"], "1 of 2 visits in one model");
     for baseline in ["posthoc-icp", "posthoc-fpfh", "posthoc-nav"] {
         let row = row(baseline);
+        // Registration alone lands far off; navigation, as good as its fix (0.1 m), nearer.
+        let factor = if baseline == "posthoc-nav" { 1.0 } else { 10.0 };
         match row["median_px"].as_f64() {
-            Some(px) => assert!(px >= 10.0 * revisit_px, "{baseline}: {px} px, not 10x Revisit's {revisit_px} px"),
+            Some(px) => assert!(px > factor * revisit_px, "{baseline}: {px} px against Revisit's {revisit_px} px"),
             None => assert!(row["failure"].is_string(), "{baseline} gave no figure and says no failure"),
         }
         // The aligned model is a COLMAP model `revisit eval` reads like any other.
@@ -112,7 +115,7 @@ fn joint_reconstruction_beats_every_post_hoc_baseline_and_the_page_shows_it() {
     assert!(count([255, 255, 255]) < area * 9 / 10, "the screenshot is blank");
     for (visit, colour) in VISIT_COLOURS.into_iter().enumerate() {
         let drawn = count(colour);
-        assert!(drawn > 500, "visit {} has {drawn} pixels of its colour in the 3D views", visit + 1);
+        assert!(drawn > 5000, "visit {} has {drawn} pixels of its colour in the 3D views", visit + 1);
     }
 }
 
