@@ -92,6 +92,11 @@ def clouds(comparison):
             continue
         points = np.asarray(cloud["points"], dtype=float)
         visits = np.asarray(cloud["visit"])
+        # A few stray points far off would shrink the rest to a dot: draw the bulk only.
+        low, high = np.percentile(points, 2, axis=0), np.percentile(points, 98, axis=0)
+        margin = 0.5 * (high - low)
+        bulk = np.all((points >= low - margin) & (points <= high + margin), axis=1)
+        points, visits = points[bulk], visits[bulk]
         figure = go.Figure()
         groups = [(v, name, PALETTE[v % len(PALETTE)]) for v, name in enumerate(cloud["sessions"])]
         for v, name, colour in groups + [(-1, "several visits", SHARED)]:
@@ -142,6 +147,7 @@ Published on real reefs (median): {html.escape(published)}.</p>
 <h2>Matching time (scaling benchmark)</h2>
 {scaling(comparison)}
 <h2>Points by visit</h2>
+<p>A sample of each model's points (stray points far outside the bulk are not drawn); black: seen by several visits.</p>
 <div class="clouds">{clouds(comparison)}</div>
 </body></html>
 """
