@@ -107,9 +107,10 @@ pub struct Args {
     /// evaluation click files) and nav/NAME.csv (for posthoc-nav).
     #[arg(long, value_name = "DIR")]
     dataset: PathBuf,
-    /// Report folder: compare.json, index.html, the aligned post-hoc models
-    /// (models/METHOD, COLMAP binary) and the work folders (work/). Re-running
-    /// reuses the finished work.
+    /// Report folder: compare.json, index.html, every scored model (models/METHOD,
+    /// COLMAP binary; a post-hoc one holds the aligned visits) and the work
+    /// folders (work/). Re-running reuses the finished work; a method's seconds
+    /// are then those of what was left to do.
     #[arg(long, value_name = "REPORT")]
     out: PathBuf,
     /// The methods, in the order they run (default: all).
@@ -228,19 +229,21 @@ pub fn run(args: Args) -> Result<()> {
                 (model, Vec::new(), failure, started.elapsed().as_secs_f64())
             }
             Method::Posthoc(alignment) => {
-                if alone.is_none() {
-                    let started = Instant::now();
-                    let mut models = Vec::new();
-                    for session in &sessions {
-                        let dir = work.join("alone").join(session);
-                        let model =
-                            reconstruct(&dir, options_for(CrossStrategy::None, None), std::slice::from_ref(session))
+                let alone = match &mut alone {
+                    Some(alone) => &*alone,
+                    empty @ None => {
+                        let started = Instant::now();
+                        let mut models = Vec::new();
+                        for session in &sessions {
+                            let dir = work.join("alone").join(session);
+                            let options = options_for(CrossStrategy::None, None);
+                            let model = reconstruct(&dir, options, std::slice::from_ref(session))
                                 .with_context(|| format!("visit {session} alone"))?;
-                        models.push((session.clone(), model));
+                            models.push((session.clone(), model));
+                        }
+                        &*empty.insert(Alone { models, seconds: started.elapsed().as_secs_f64() })
                     }
-                    alone = Some(Alone { models, seconds: started.elapsed().as_secs_f64() });
-                }
-                let Some(alone) = &alone else { unreachable!("made above") };
+                };
                 let navigation = match alignment {
                     Alignment::Navigation => match read_navigation(&args.dataset, &sessions)? {
                         Ok(navigation) => navigation,
