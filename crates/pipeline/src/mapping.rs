@@ -20,6 +20,9 @@ pub struct MappingOutcome {
     pub extended: bool,
     /// A fingerprint of the store's content that the models were built from.
     pub inputs: String,
+    /// The pairs set aside (kept out of COLMAP's sight) when the models were built.
+    #[serde(default)]
+    pub set_aside: Vec<u64>,
     /// COLMAP's peak resident memory, MiB (`None` when the models were kept).
     #[serde(default)]
     pub peak_rss_mib: Option<f64>,
@@ -63,11 +66,22 @@ fn keypoints_unchanged(model: &Path, database: &Path) -> bool {
     unchanged
 }
 
+/// Whether every pair set aside now was already set aside when the previous model was built.
+fn none_withdrawn(before: &[u64], now: &[u64]) -> bool {
+    let withdrawn = now.iter().filter(|pair| !before.contains(pair)).count();
+    if withdrawn > 0 {
+        tracing::info!(withdrawn, "mapping afresh: pairs of the previous model were set aside");
+    }
+    withdrawn == 0
+}
+
 /// Maps the store at `database` into `work`'s model folder. `inputs` is a
 /// fingerprint of what the store holds: if the last mapping had the same, its
 /// models are kept; if it differs and the engine is incremental, the previous
-/// largest model is extended with the new images. A cancelled run leaves the
-/// previous models as they were.
+/// largest model is extended with the new images, unless pairs it was built
+/// with are now among `set_aside` (a model holds its pairs' tracks: it is
+/// rebuilt without them). A cancelled run leaves the previous models as they
+/// were.
 #[allow(clippy::too_many_arguments)] // the stage's inputs, each needed
 pub fn map(
     python: &Path,
@@ -75,6 +89,7 @@ pub fn map(
     image_root: &Path,
     work: &Path,
     inputs: &str,
+    set_aside: &[u64],
     constant_cameras: &[CameraId],
     options: &MapperOptions,
     cancel: &Cancel,
@@ -91,6 +106,7 @@ pub fn map(
         .as_ref()
         .and_then(|b| b.models.first())
         .filter(|_| options.engine == Engine::Incremental)
+        .filter(|_| before.as_ref().is_none_or(|b| none_withdrawn(&b.set_aside, set_aside)))
         .filter(|m| keypoints_unchanged(&m.path, database))
         .map(|m| m.path.clone());
     // Extend from a copy: the models in place are replaced only on success.
@@ -133,6 +149,7 @@ pub fn map(
         reused: false,
         extended: extend.is_some(),
         inputs: inputs.to_owned(),
+        set_aside: set_aside.to_vec(),
         peak_rss_mib: produced.peak_rss_mib,
     };
     let record = record_path(work);

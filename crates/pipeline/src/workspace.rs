@@ -474,9 +474,9 @@ impl Workspace {
             .collect::<BTreeSet<_>>()
             .into_iter()
             .collect();
+        let aside: Vec<u64> = self.store.set_aside_pairs()?.into_keys().collect();
         let inputs = {
             let inliers: usize = records.iter().map(|r| r.num_inliers).sum();
-            let aside: Vec<u64> = self.store.set_aside_pairs()?.into_keys().collect();
             let names: Vec<String> = self.sessions.iter().flat_map(|s| &s.images).map(|i| i.name.to_string()).collect();
             let cameras: Vec<&Camera> = self.sessions.iter().flat_map(|s| s.cameras.values()).collect();
             format!(
@@ -489,7 +489,18 @@ impl Workspace {
         };
         let database = self.dir.join("database.db");
         let image_root = self.dir.join("images");
-        mapping::map(&self.python, &database, &image_root, &self.dir, &inputs, &constant, &self.options.mapper, cancel)
+        let work = &self.dir;
+        mapping::map(
+            &self.python,
+            &database,
+            &image_root,
+            work,
+            &inputs,
+            &aside,
+            &constant,
+            &self.options.mapper,
+            cancel,
+        )
     }
 
     /// Writes what this folder hands to users (the COLMAP model(s) `model/`, `points.ply`,
