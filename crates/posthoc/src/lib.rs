@@ -19,7 +19,7 @@ use revisit_core::{Reconstruction, Similarity};
 use serde::Serialize;
 
 pub use navigation::{fit_to_navigation, parse_navigation_csv, NavigationFix};
-pub use register::{register, Registered, Registration, REGISTER_SCRIPT};
+pub use register::{register, Registered, Registration};
 
 #[derive(Debug, thiserror::Error)]
 pub enum PosthocError {
@@ -52,8 +52,6 @@ pub enum Alignment {
 }
 
 impl Alignment {
-    pub const ALL: [Alignment; 3] = [Alignment::Icp, Alignment::Fpfh, Alignment::Navigation];
-
     pub fn name(self) -> &'static str {
         match self {
             Alignment::Icp => "icp",

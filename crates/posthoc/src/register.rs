@@ -13,7 +13,7 @@ use serde::Deserialize;
 use crate::PosthocError;
 
 /// The registration script (Open3D), as embedded.
-pub const REGISTER_SCRIPT: &str = include_str!("../python/revisit_register.py");
+const REGISTER_SCRIPT: &str = include_str!("../python/revisit_register.py");
 
 /// Which registration the script runs.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
