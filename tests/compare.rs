@@ -62,7 +62,7 @@ fn joint_reconstruction_beats_every_post_hoc_baseline_and_the_page_shows_it() {
     ]);
     let report = dir.path().join("report");
     let report_arg = report.to_str().unwrap();
-    let methods = "revisit,joint-sift,posthoc-icp,posthoc-fpfh,posthoc-nav";
+    let methods = "revisit,revisit-nav,joint-sift,posthoc-icp,posthoc-fpfh,posthoc-nav";
     let printed = run_ok(&["bench", "compare", "--dataset", reef_arg, "--out", report_arg, "--methods", methods]);
     println!("{}", String::from_utf8_lossy(&printed.stdout));
 
@@ -75,6 +75,23 @@ fn joint_reconstruction_beats_every_post_hoc_baseline_and_the_page_shows_it() {
     assert_eq!(revisit["failure"], serde_json::Value::Null);
     assert_eq!(revisit["sessions_merged"], 2, "both visits in Revisit's one model");
     let revisit_px = revisit["median_px"].as_f64().unwrap();
+    // With each visit's navigation as pose priors: one model, metric, in the navigation frame
+    // (the truth's world, as synth draws it), every visit at the model's scale, and no worse.
+    let nav = row("revisit-nav");
+    assert_eq!((nav["failure"].clone(), nav["sessions_merged"].clone()), (serde_json::Value::Null, 2.into()));
+    let scale = nav["truth_from_model_scale"].as_f64().unwrap();
+    assert!((scale - 1.0).abs() < 0.01, "the model on navigation is at {scale}x the truth's scale");
+    for (visit, error) in nav["visit_scale_rel_error"].as_object().unwrap() {
+        assert!(error.as_f64().unwrap().abs() < 0.02, "visit {visit}'s scale is {error} off the model's");
+    }
+    let nav_px = nav["median_px"].as_f64().unwrap();
+    assert!(nav_px <= revisit_px, "navigation priors made it worse: {nav_px} px against {revisit_px} px");
+    let nav_report = read_json(&report.join("work/revisit-nav/report.json"));
+    assert_eq!(nav_report["mapping"]["frame"], "navigation");
+    assert_eq!(
+        (nav_report["sessions"]["s1"]["navigation"].clone(), nav_report["sessions"]["s2"]["navigation"].clone()),
+        (10.into(), 10.into())
+    );
     // Joint SIFT links nothing across strong change: marked as failed to merge, not dropped.
     assert_eq!(row("joint-sift")["failure"], "1 of 2 visits in one model");
     for baseline in ["posthoc-icp", "posthoc-fpfh", "posthoc-nav"] {

@@ -279,6 +279,20 @@ fn bad_input_gets_one_line_errors_and_keeps_the_store() {
     let err = err_of(&["--session", &good, "--session", &truncated_arg]);
     assert!(err.contains(first.file_name().unwrap().to_str().unwrap()), "{err}");
 
+    // Navigation: a bad cell is named by file, row and column; rows must name the visit's images.
+    let names: Vec<String> =
+        std::fs::read_dir(&frames).unwrap().map(|e| e.unwrap().file_name().to_string_lossy().into_owned()).collect();
+    let nav = data.path().join("pool.csv");
+    std::fs::write(&nav, format!("image,x,y,z\n{},0,0,1\n{},0.5,up,1\n", names[0], names[1])).unwrap();
+    let nav_arg = format!("pool={}", nav.display());
+    let err = err_of(&["--session", &good, "--nav", &nav_arg]);
+    assert!(err.contains(&format!("{}: row 3: \"up\" is not a finite number (y)", nav.display())), "{err}");
+    std::fs::write(&nav, "image,x,y,z\nelsewhere.png,0,0,1\n").unwrap();
+    let err = err_of(&["--session", &good, "--nav", &nav_arg]);
+    assert!(err.contains("--nav pool=") && err.contains("none of the 1 navigation rows"), "{err}");
+    let err = err_of(&["--session", &good, "--nav", &format!("other={}", nav.display())]);
+    assert!(err.contains("navigation for session other, which was not added"), "{err}");
+
     let err = err_of(&["--session", &good, "--python", "/nonexistent/python"]);
     assert!(err.contains("--python") && err.contains("/nonexistent/python"), "{err}");
 

@@ -26,6 +26,12 @@ def cell(value, digits=2):
     return "-" if value is None else f"{value:.{digits}f}"
 
 
+def worst(values):
+    """The largest magnitude among a method's per-visit figures, or None."""
+    known = [abs(v) for v in values.values() if v is not None]
+    return max(known) if known else None
+
+
 def table(comparison):
     methods = comparison["methods"]
     revisit = next((m["median_px"] for m in methods if m["method"] == "revisit"), None)
@@ -36,16 +42,22 @@ def table(comparison):
         if revisit and m["median_px"] is not None and m["method"] != "revisit":
             ratio = f"{m['median_px'] / revisit:.1f}x"
         status = f"FAILED: {html.escape(m['failure'])}" if failed else "ok"
+        scale_error = worst(m["visit_scale_rel_error"])
+        scale = "-" if scale_error is None else f"{100 * scale_error:.2f}%"
         rows.append(
             f"<tr class=\"{'failed' if failed else 'ok'}\"><td><b>{html.escape(m['method'])}</b><br>"
             f"<small>{html.escape(m['about'])}</small></td>"
             f"<td>{cell(m['median_px'])}</td><td>{cell(m['mean_px'])}</td><td>{ratio}</td>"
             f"<td>{m['clicks_scored']}/{m['clicks']}</td><td>{m['sessions_merged']}/{m['sessions']}</td>"
+            f"<td>{scale}</td><td>{cell(worst(m['visit_rotation_deg']))}</td>"
             f"<td>{cell(m['seconds'], 1)}</td><td>{status}</td></tr>"
         )
     header = (
         "<tr><th>method</th><th>median px</th><th>mean px</th><th>median / revisit</th>"
-        "<th>clicks scored</th><th>visits in one model</th><th>seconds</th><th>status</th></tr>"
+        "<th>clicks scored</th><th>visits in one model</th>"
+        "<th title=\"the worst visit's scale against its model's, by the truth's cameras\">visit scale error</th>"
+        "<th title=\"the worst visit's median camera rotation error\">rotation error, deg</th>"
+        "<th>seconds</th><th>status</th></tr>"
     )
     return f"<table id=\"methods\">{header}{''.join(rows)}</table>"
 

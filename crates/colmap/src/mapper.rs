@@ -120,6 +120,10 @@ pub struct ModelSummary {
     pub registered_images: Vec<String>,
     pub points: usize,
     pub mean_reprojection_error_px: f64,
+    /// RMS distance between the registered cameras and their navigation
+    /// priors, metres (`None` when the model was not placed on priors).
+    #[serde(default)]
+    pub navigation_rms_m: Option<f64>,
 }
 
 /// What one mapper run produced.
@@ -127,6 +131,9 @@ pub struct ModelSummary {
 pub struct Mapped {
     /// Every model, largest first.
     pub models: Vec<ModelSummary>,
+    /// The models were placed on the pose priors (metres, their frame).
+    #[serde(default)]
+    pub on_priors: bool,
     /// The mapper process's peak resident memory, MiB.
     pub peak_rss_mib: Option<f64>,
 }
@@ -162,13 +169,23 @@ pub struct MapperRun<'a> {
     /// engine can hold all cameras fixed or none: it refines them all
     /// unless every camera is listed.
     pub constant_cameras: &'a [u32],
+    /// Place the model on the store's pose priors (navigation): bundle
+    /// adjustment pulls each prior-holding camera towards its position,
+    /// weighted by its covariance (robustly), and the result is in the
+    /// priors' frame and metres. COLMAP uses them with at least
+    /// [`MIN_POSE_PRIORS`] registered.
+    pub pose_priors: bool,
 }
+
+/// The fewest registered images with a pose prior with which COLMAP's bundle
+/// adjustment uses the priors.
+pub const MIN_POSE_PRIORS: usize = 3;
 
 /// Maps the store into `run.output/<k>`, k = 0, 1, ... by decreasing size,
 /// and returns every model produced. Setting `cancelled` stops COLMAP (within
 /// a tenth of a second) and returns [`MapperError::Cancelled`].
 pub fn run_mapper(run: &MapperRun<'_>, options: &MapperOptions, cancelled: &AtomicBool) -> Result<Mapped, MapperError> {
-    let MapperRun { python, database, image_root, output, extend, constant_cameras } = *run;
+    let MapperRun { python, database, image_root, output, extend, constant_cameras, pose_priors } = *run;
     let parent = output.parent().unwrap_or(Path::new("."));
     let script = parent.join("revisit_mapper.py");
     std::fs::write(&script, ENTRY_POINT).map_err(|source| MapperError::Io { path: script.clone(), source })?;
@@ -197,6 +214,9 @@ pub fn run_mapper(run: &MapperRun<'_>, options: &MapperOptions, cancelled: &Atom
     if !constant_cameras.is_empty() {
         let ids: Vec<String> = constant_cameras.iter().map(u32::to_string).collect();
         command.arg("--constant-cameras").arg(ids.join(","));
+    }
+    if pose_priors {
+        command.arg("--pose-priors");
     }
     if let (Some(input), Engine::Incremental) = (extend, options.engine) {
         command.arg("--input-path").arg(input);

@@ -122,6 +122,11 @@ pub struct SessionTruth {
     /// Images of this session registered in any model.
     pub registered_in_any: usize,
     pub pose: PoseErrors,
+    /// The session's scale in its model against the model's: the similarity fitted to this
+    /// session's cameras alone, its scale over that of the alignment used for the model, minus
+    /// 1 (0.01 = this visit comes out 1% larger than the rest of the model). `None` with fewer
+    /// than 3 registered images.
+    pub scale_rel_error: Option<f64>,
 }
 
 /// Figures against ground-truth poses.
@@ -218,6 +223,15 @@ pub fn score_truth(models: &[Reconstruction], truth: &[TruthPose], options: &Tru
             rotation_errors.get(name.as_str()).unwrap_or(&empty),
             scene_size_m,
         );
+    }
+    for (matched, similarity) in per_model.iter().zip(&similarities) {
+        let Some(similarity) = similarity else { continue };
+        for (name, s) in sessions.iter_mut() {
+            let own: Vec<&(&TruthPose, Rigid3)> = matched.iter().filter(|(t, _)| t.session == *name).collect();
+            if own.len() >= 3 {
+                s.scale_rel_error = fit(&own).map(|alone| alone.scale / similarity.scale - 1.0);
+            }
+        }
     }
     let all_centres: Vec<f64> = centre_errors.values().flatten().copied().collect();
     let all_rotations: Vec<f64> = rotation_errors.values().flatten().copied().collect();

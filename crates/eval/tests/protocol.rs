@@ -322,6 +322,17 @@ fn truth_figures_after_similarity_alignment() {
     assert_eq!(t.sessions["B"].registration_rate, 0.75);
     assert!((t.similarities[0].unwrap().scale - 1.0 / 0.37).abs() < 1e-9);
     assert!(t.scene_size_m > 1.0);
+    assert!(t.sessions.values().all(|s| s.scale_rel_error.unwrap().abs() < 1e-9));
+
+    // Session B 5% too large inside a joint model (its camera centres spread about the origin).
+    let mut grown = truth.clone();
+    for image in grown.images.values_mut().filter(|i| i.name.starts_with("B/")) {
+        let centre = image.cam_from_world.origin_of_target().coords * 1.05;
+        image.cam_from_world = Rigid3::new(image.cam_from_world.rotation, -(image.cam_from_world.rotation * centre));
+    }
+    let t = score_truth(std::slice::from_ref(&grown), &poses, &TruthOptions::default());
+    let scale = |s: &str| 1.0 + t.sessions[s].scale_rel_error.unwrap();
+    assert!((scale("B") / scale("A") - 1.0 / 1.05).abs() < 1e-9, "{:?}", t.sessions);
 
     // Session B displaced inside a joint model: B's camera centres move.
     let d = Rigid3::new(UnitQuaternion::identity(), Vector3::new(0.5, 0.0, 0.0));

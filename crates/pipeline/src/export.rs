@@ -69,6 +69,7 @@ pub fn session_reports(
                 visit: s.visit,
                 images: s.images.len(),
                 registered: count,
+                navigation: 0,
                 cameras: s.camera_reports(),
             };
             (s.name.clone(), report)

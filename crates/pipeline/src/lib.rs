@@ -30,6 +30,7 @@ pub mod locate;
 pub mod mapping;
 pub mod memory;
 pub mod messages;
+pub mod navigation;
 pub mod odometry;
 pub mod options;
 pub mod report;
@@ -61,6 +62,11 @@ pub enum PipelineError {
     /// A bag that cannot be read or written, or a topic that holds no images.
     #[error("{0}")]
     Bag(String),
+    /// A navigation CSV that cannot be read: its file, row (1 = the header) and what is wrong.
+    #[error("{file}: row {row}: {message}")]
+    BadNavigation { file: String, row: usize, message: String },
+    #[error("session {session}: none of the {rows} navigation rows names one of its images (the first names {first})")]
+    NavigationUnmatched { session: String, rows: usize, first: String },
     #[error("{path}: unreadable image: {reason}")]
     BadImage { path: PathBuf, reason: String },
     #[error(

@@ -3,8 +3,9 @@
 
 use std::path::{Path, PathBuf};
 
-use revisit_colmap::{run_mapper, Engine, MapperError, MapperOptions, MapperRun, ModelSummary};
+use revisit_colmap::{run_mapper, Engine, MapperError, MapperOptions, MapperRun, ModelSummary, MIN_POSE_PRIORS};
 use revisit_core::CameraId;
+use revisit_store::PosePrior;
 use serde::{Deserialize, Serialize};
 
 use crate::{Cancel, PipelineError};
@@ -23,6 +24,12 @@ pub struct MappingOutcome {
     /// The pairs set aside (kept out of COLMAP's sight) when the models were built.
     #[serde(default)]
     pub set_aside: Vec<u64>,
+    /// A fingerprint of the navigation priors the models were built with ("" for none).
+    #[serde(default)]
+    pub priors: String,
+    /// The models were placed on the navigation priors (metres, in the navigation frame).
+    #[serde(default)]
+    pub on_navigation: bool,
     /// COLMAP's peak resident memory, MiB (`None` when the models were kept).
     #[serde(default)]
     pub peak_rss_mib: Option<f64>,
@@ -75,28 +82,67 @@ fn none_withdrawn(before: &[u64], now: &[u64]) -> bool {
     withdrawn == 0
 }
 
-/// Maps the store at `database` into `work`'s model folder. `inputs` is a
-/// fingerprint of what the store holds: if the last mapping had the same, its
-/// models are kept; if it differs and the engine is incremental, the previous
-/// largest model is extended with the new images, unless pairs it was built
-/// with are now among `set_aside` (a model holds its pairs' tracks: it is
-/// rebuilt without them). A cancelled run leaves the previous models as they
-/// were.
-#[allow(clippy::too_many_arguments)] // the stage's inputs, each needed
+/// What a mapping is built from, besides the store's matches.
+pub struct MappingInputs<'a> {
+    /// A fingerprint of everything the store holds that mapping reads.
+    pub fingerprint: &'a str,
+    /// The pairs set aside (kept out of COLMAP's sight).
+    pub set_aside: &'a [u64],
+    /// A fingerprint of the navigation priors, "" for none.
+    pub priors: &'a str,
+    /// How many images have a navigation prior.
+    pub pose_priors: usize,
+    /// Cameras whose intrinsics are held fixed.
+    pub constant_cameras: &'a [CameraId],
+}
+
+/// A fingerprint of navigation priors: "" for none, else their count and a hash of every
+/// value (FNV-1a over the bits, stable across builds).
+pub fn priors_fingerprint(priors: &[PosePrior]) -> String {
+    if priors.is_empty() {
+        return String::new();
+    }
+    let mut hash: u64 = 0xcbf2_9ce4_8422_2325;
+    let mut add = |word: u64| {
+        for byte in word.to_le_bytes() {
+            hash = (hash ^ u64::from(byte)).wrapping_mul(0x0100_0000_01b3);
+        }
+    };
+    for prior in priors {
+        add(u64::from(prior.image_id));
+        prior.position_m.iter().for_each(|v| add(v.to_bits()));
+        prior.covariance_m2.iter().flat_map(|c| c.iter()).for_each(|v| add(v.to_bits()));
+    }
+    format!("{} priors {hash:016x}", priors.len())
+}
+
+/// Whether the navigation priors are those the previous model was built with.
+fn same_priors(before: &str, now: &str) -> bool {
+    if before != now {
+        tracing::info!("mapping afresh: the navigation priors changed");
+    }
+    before == now
+}
+
+/// Maps the store at `database` into `work`'s model folder. If the last
+/// mapping had the same `inputs.fingerprint`, its models are kept; if it
+/// differs and the engine is incremental, the previous largest model is
+/// extended with the new images, unless pairs it was built with are now set
+/// aside (a model holds its pairs' tracks: it is rebuilt without them) or the
+/// navigation priors changed (the model is placed on them from the start).
+/// A cancelled run leaves the previous models as they were.
 pub fn map(
     python: &Path,
     database: &Path,
     image_root: &Path,
     work: &Path,
-    inputs: &str,
-    set_aside: &[u64],
-    constant_cameras: &[CameraId],
+    inputs: &MappingInputs,
     options: &MapperOptions,
     cancel: &Cancel,
 ) -> Result<MappingOutcome, PipelineError> {
     let before = previous(work);
     if let Some(before) = &before {
-        if before.inputs == inputs {
+        if before.inputs == inputs.fingerprint {
             tracing::info!("mapping: the store is unchanged since the last run; keeping its models");
             return Ok(MappingOutcome { reused: true, extended: false, peak_rss_mib: None, ..before.clone() });
         }
@@ -106,7 +152,8 @@ pub fn map(
         .as_ref()
         .and_then(|b| b.models.first())
         .filter(|_| options.engine == Engine::Incremental)
-        .filter(|_| before.as_ref().is_none_or(|b| none_withdrawn(&b.set_aside, set_aside)))
+        .filter(|_| before.as_ref().is_none_or(|b| none_withdrawn(&b.set_aside, inputs.set_aside)))
+        .filter(|_| before.as_ref().is_none_or(|b| same_priors(&b.priors, inputs.priors)))
         .filter(|m| keypoints_unchanged(&m.path, database))
         .map(|m| m.path.clone());
     // Extend from a copy: the models in place are replaced only on success.
@@ -119,8 +166,15 @@ pub fn map(
         None => None,
     };
     tracing::info!(extend = ?extend, "mapping with COLMAP");
-    let run =
-        MapperRun { python, database, image_root, output: &staging, extend: extend_copy.as_deref(), constant_cameras };
+    let run = MapperRun {
+        python,
+        database,
+        image_root,
+        output: &staging,
+        extend: extend_copy.as_deref(),
+        constant_cameras: inputs.constant_cameras,
+        pose_priors: inputs.pose_priors >= MIN_POSE_PRIORS,
+    };
     let produced = match run_mapper(&run, options, cancel.flag()) {
         Err(MapperError::Cancelled) => return Err(PipelineError::Cancelled),
         other => other?,
@@ -148,8 +202,10 @@ pub fn map(
         models,
         reused: false,
         extended: extend.is_some(),
-        inputs: inputs.to_owned(),
-        set_aside: set_aside.to_vec(),
+        inputs: inputs.fingerprint.to_owned(),
+        set_aside: inputs.set_aside.to_vec(),
+        priors: inputs.priors.to_owned(),
+        on_navigation: produced.on_priors,
         peak_rss_mib: produced.peak_rss_mib,
     };
     let record = record_path(work);

@@ -56,6 +56,9 @@ pub struct SessionReport {
     pub visit: usize,
     pub images: usize,
     pub registered: usize,
+    /// Images with a navigation prior (`reconstruct --nav`).
+    #[serde(default)]
+    pub navigation: usize,
     /// Cameras by name.
     pub cameras: BTreeMap<String, CameraReport>,
 }
@@ -101,6 +104,24 @@ pub struct MappingReport {
     /// The previous model was extended rather than rebuilt.
     pub extended: bool,
     pub mean_reprojection_error_px: Option<f64>,
+    /// The frame the model is in.
+    #[serde(default)]
+    pub frame: ModelFrame,
+    /// RMS distance between the chosen model's cameras and their navigation, metres.
+    #[serde(default)]
+    pub navigation_rms_m: Option<f64>,
+}
+
+/// The frame of a model's coordinates.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum ModelFrame {
+    /// COLMAP's own: origin, orientation and scale arbitrary.
+    #[default]
+    Arbitrary,
+    /// The navigation's (metres; ENU or NED as the navigation gives it): mapping used the
+    /// navigation priors and placed the model on them.
+    Navigation,
 }
 
 impl Report {

@@ -4,8 +4,8 @@ use std::collections::{BTreeMap, BTreeSet};
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
-use revisit_core::{Camera, CameraId, CameraModel, ImageId, ImageName};
-use revisit_store::Store;
+use revisit_core::{Camera, CameraId, CameraModel, ImageId, ImageName, NavigationFix};
+use revisit_store::{PosePrior, Store};
 
 use revisit_matching::cross::judge;
 use revisit_matching::CrossMatch;
@@ -19,7 +19,7 @@ use crate::mapping::{self, io, MappingOutcome};
 use crate::memory;
 use crate::messages::FeaturesRecord;
 use crate::options::{CameraSpec, ReconstructOptions};
-use crate::report::{CameraReport, CrossReport, MappingReport, Report};
+use crate::report::{CameraReport, CrossReport, MappingReport, ModelFrame, Report};
 use crate::stages::{self, LearnedKeypoints};
 use crate::{workers, Cancel, PipelineError, Progress, StageCounts};
 
@@ -216,6 +216,40 @@ impl Workspace {
         Ok(&self.sessions[at])
     }
 
+    /// Stores the navigation of an added session as COLMAP pose priors (replacing any stored
+    /// for the same images), so that mapping places the visit on it: metric scale, in the
+    /// navigation frame. Fixes for images the session does not hold are skipped (a navigation
+    /// log may cover more than the keyframes); none matching is an error. Returns how many of
+    /// the session's images have a prior now.
+    pub fn add_navigation(&mut self, session: &str, fixes: &[NavigationFix]) -> Result<usize, PipelineError> {
+        let Some(stored) = self.sessions.iter().find(|s| s.name == session) else {
+            return Err(PipelineError::Name(format!("navigation for session {session}, which was not added")));
+        };
+        let images: BTreeMap<String, &SessionImage> = stored.images.iter().map(|i| (i.name.to_string(), i)).collect();
+        let priors: Vec<PosePrior> = fixes
+            .iter()
+            .filter_map(|fix| {
+                let image = images.get(&fix.image)?;
+                Some(PosePrior {
+                    image_id: image.id,
+                    camera_id: stored.cameras.get(&image.camera)?.camera_id,
+                    position_m: fix.position_m,
+                    covariance_m2: fix.covariance_m2(),
+                })
+            })
+            .collect();
+        if priors.is_empty() {
+            return Err(PipelineError::NavigationUnmatched {
+                session: session.to_owned(),
+                rows: fixes.len(),
+                first: fixes.first().map(|f| f.image.clone()).unwrap_or_default(),
+            });
+        }
+        self.store.write_pose_priors(&priors)?;
+        let ids: BTreeSet<ImageId> = stored.images.iter().map(|i| i.id).collect();
+        Ok(self.store.pose_priors()?.iter().filter(|p| ids.contains(&p.image_id)).count())
+    }
+
     /// Holds the cameras under `key` (`SESSION/CAMERA`, `SESSION` or `""`, as
     /// [`crate::options::CameraOptions::calibrated`]) at `spec`'s intrinsics:
     /// for cameras that say their calibration as their images arrive (a
@@ -323,7 +357,13 @@ impl Workspace {
         figures.run("export", || self.export(&outcome, chosen))?;
 
         let records = self.store.pair_records()?;
-        let sessions = export::session_reports(&self.sessions, &outcome.models, chosen);
+        let mut sessions = export::session_reports(&self.sessions, &outcome.models, chosen);
+        let priors: BTreeSet<ImageId> = self.store.pose_priors()?.iter().map(|p| p.image_id).collect();
+        for session in &self.sessions {
+            if let Some(report) = sessions.get_mut(&session.name) {
+                report.navigation = session.images.iter().filter(|i| priors.contains(&i.id)).count();
+            }
+        }
         let chosen_model = chosen.and_then(|k| outcome.models.get(k));
         let report = Report {
             unlinked_sessions: export::unlinked_sessions(&sessions),
@@ -341,6 +381,11 @@ impl Workspace {
                 reused: outcome.reused,
                 extended: outcome.extended,
                 mean_reprojection_error_px: chosen_model.map(|m| m.mean_reprojection_error_px),
+                frame: match outcome.on_navigation {
+                    true => ModelFrame::Navigation,
+                    false => ModelFrame::Arbitrary,
+                },
+                navigation_rms_m: chosen_model.and_then(|m| m.navigation_rms_m),
             },
             seconds: figures.seconds,
             peak_rss_mib: figures.peak_rss_mib,
@@ -475,32 +520,30 @@ impl Workspace {
             .into_iter()
             .collect();
         let aside: Vec<u64> = self.store.set_aside_pairs()?.into_keys().collect();
-        let inputs = {
+        let priors = self.store.pose_priors()?;
+        let priors_fingerprint = mapping::priors_fingerprint(&priors);
+        let fingerprint = {
             let inliers: usize = records.iter().map(|r| r.num_inliers).sum();
             let names: Vec<String> = self.sessions.iter().flat_map(|s| &s.images).map(|i| i.name.to_string()).collect();
             let cameras: Vec<&Camera> = self.sessions.iter().flat_map(|s| s.cameras.values()).collect();
             format!(
                 "{} images {names:?}; cameras {cameras:?}, constant {constant:?}; {} pairs, {inliers} inliers, \
-                 set aside {aside:?}; {:?}",
+                 set aside {aside:?}; priors {priors_fingerprint}; {:?}",
                 names.len(),
                 records.len(),
                 self.options.mapper
             )
         };
+        let inputs = mapping::MappingInputs {
+            fingerprint: &fingerprint,
+            set_aside: &aside,
+            priors: &priors_fingerprint,
+            pose_priors: priors.len(),
+            constant_cameras: &constant,
+        };
         let database = self.dir.join("database.db");
         let image_root = self.dir.join("images");
-        let work = &self.dir;
-        mapping::map(
-            &self.python,
-            &database,
-            &image_root,
-            work,
-            &inputs,
-            &aside,
-            &constant,
-            &self.options.mapper,
-            cancel,
-        )
+        mapping::map(&self.python, &database, &image_root, &self.dir, &inputs, &self.options.mapper, cancel)
     }
 
     /// Writes what this folder hands to users (the COLMAP model(s) `model/`, `points.ply`,

@@ -15,10 +15,10 @@ mod register;
 use std::path::Path;
 use std::sync::atomic::AtomicBool;
 
-use revisit_core::{Reconstruction, Similarity};
+use revisit_core::{NavigationFix, Reconstruction, Similarity};
 use serde::Serialize;
 
-pub use navigation::{fit_to_navigation, parse_navigation_csv, NavigationFix};
+pub use navigation::fit_to_navigation;
 pub use register::{register, Registered, Registration};
 
 #[derive(Debug, thiserror::Error)]
@@ -31,8 +31,6 @@ pub enum PosthocError {
     Failed { status: String, stderr_tail: String },
     #[error("registration printed no result: {0}")]
     BadResult(String),
-    #[error("{source_name}: row {row}: {message}")]
-    BadNavigation { source_name: String, row: usize, message: String },
     #[error("stopped on request")]
     Cancelled,
     #[error(transparent)]

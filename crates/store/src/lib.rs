@@ -1,6 +1,7 @@
 //! The store: one SQLite file that is both a COLMAP database (3.8 schema, read
-//! by COLMAP 3.8 and pycolmap 4.x) and Revisit's memory of the work done:
-//! sessions, which image pairs were matched, how and with what result.
+//! by COLMAP 3.8 and pycolmap 4.x, plus COLMAP 4's `pose_priors`) and
+//! Revisit's memory of the work done: sessions, which image pairs were
+//! matched, how and with what result.
 //!
 //! Invariant: the only code in Revisit that speaks SQL. Every write of one
 //! image's features or one pair's matches is a single transaction, so a killed
@@ -8,9 +9,11 @@
 
 mod blob;
 mod learned;
+mod priors;
 mod schema;
 
 pub use learned::CrossSide;
+pub use priors::PosePrior;
 pub use revisit_core::CrossKey;
 
 use std::collections::{BTreeMap, BTreeSet};
@@ -105,6 +108,14 @@ impl Store {
 
     pub fn path(&self) -> &Path {
         &self.path
+    }
+
+    /// Writes a consistent copy of the whole store to `to` (a new file; SQLite's `VACUUM
+    /// INTO`), e.g. to start another reconstruction from this one's work.
+    pub fn copy_to(&self, to: &Path) -> Result<()> {
+        let target = to.to_str().ok_or_else(|| self.corrupt(to.display().to_string(), "not a UTF-8 path"))?;
+        self.conn.execute("VACUUM INTO ?1", [target]).map_err(|e| self.sql(e))?;
+        Ok(())
     }
 
     fn sql(&self, source: rusqlite::Error) -> StoreError {

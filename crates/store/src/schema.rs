@@ -1,5 +1,6 @@
-//! COLMAP 3.8's database schema, verbatim in meaning, plus Revisit's tables
-//! (prefixed `revisit_`, which COLMAP ignores).
+//! COLMAP 3.8's database schema, verbatim in meaning, COLMAP 4's `pose_priors`
+//! (as pycolmap 4.2 makes it, so that it finds the table its own), plus
+//! Revisit's tables (prefixed `revisit_`, which COLMAP ignores).
 
 pub const SCHEMA: &str = "
 PRAGMA foreign_keys = ON;
@@ -44,6 +45,17 @@ CREATE TABLE IF NOT EXISTS two_view_geometries (
     data BLOB,
     config INTEGER NOT NULL,
     F BLOB, E BLOB, H BLOB, qvec BLOB, tvec BLOB);
+CREATE TABLE IF NOT EXISTS pose_priors (
+    pose_prior_id INTEGER PRIMARY KEY NOT NULL,
+    corr_data_id INTEGER NOT NULL,
+    corr_sensor_id INTEGER NOT NULL,
+    corr_sensor_type INTEGER NOT NULL,
+    position BLOB,
+    position_covariance BLOB,
+    gravity BLOB,
+    coordinate_system INTEGER NOT NULL);
+CREATE UNIQUE INDEX IF NOT EXISTS pose_prior_data_assignment ON
+    pose_priors(corr_data_id, corr_sensor_id, corr_sensor_type);
 
 CREATE TABLE IF NOT EXISTS revisit_settings (
     key TEXT PRIMARY KEY NOT NULL,

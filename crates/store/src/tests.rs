@@ -140,3 +140,22 @@ fn pairs_are_stored_in_colmap_order() {
     assert_eq!(store.pair_records().unwrap()[0].predicted_roll_deg, None);
     assert!(store.two_view_geometry(pair).unwrap().is_some());
 }
+
+#[test]
+fn pose_priors_round_trip_and_replace() {
+    let (_dir, mut store, ids) = store_with_images();
+    let (a, b) = (ids["2019/a.png"], ids["2019/b.png"]);
+    let camera_id = store.camera(1).unwrap().camera_id;
+    let covariance = nalgebra::Matrix3::from_diagonal(&nalgebra::Vector3::new(0.01, 0.01, 0.0004));
+    let prior = |image_id, x: f64, covariance_m2| PosePrior {
+        image_id,
+        camera_id,
+        position_m: nalgebra::Point3::new(x, 2.0, -3.0),
+        covariance_m2,
+    };
+    store.write_pose_priors(&[prior(a, 1.0, Some(covariance)), prior(b, 5.0, None)]).unwrap();
+    assert_eq!(store.pose_priors().unwrap(), vec![prior(a, 1.0, Some(covariance)), prior(b, 5.0, None)]);
+    // An image's new prior replaces its old one.
+    store.write_pose_priors(&[prior(b, 7.0, Some(covariance))]).unwrap();
+    assert_eq!(store.pose_priors().unwrap(), vec![prior(a, 1.0, Some(covariance)), prior(b, 7.0, Some(covariance))]);
+}

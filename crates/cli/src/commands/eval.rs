@@ -216,20 +216,21 @@ fn table(scores: &Scores, models: &[Reconstruction], paths: &[PathBuf], truth: O
         );
         let _ = writeln!(
             out,
-            "{:<16} {:>7} {:>10} {:>6} {:>14} {:>12} {:>12}",
-            "session", "truth", "registered", "rate", "centre med m", "centre rel", "rot med deg"
+            "{:<16} {:>7} {:>10} {:>6} {:>14} {:>12} {:>12} {:>11}",
+            "session", "truth", "registered", "rate", "centre med m", "centre rel", "rot med deg", "scale rel"
         );
         for (session, s) in &t.sessions {
             let _ = writeln!(
                 out,
-                "{:<16} {:>7} {:>10} {:>6.3} {:>14} {:>12} {:>12}",
+                "{:<16} {:>7} {:>10} {:>6.3} {:>14} {:>12} {:>12} {:>11}",
                 session,
                 s.images_in_truth,
                 s.registered_in_largest,
                 s.registration_rate,
                 fmt_opt(s.pose.centre_median_m, 4),
                 fmt_opt(s.pose.centre_median_rel, 5),
-                fmt_opt(s.pose.rotation_median_deg, 3)
+                fmt_opt(s.pose.rotation_median_deg, 3),
+                fmt_opt(s.scale_rel_error, 4)
             );
         }
         let o = &t.overall;
@@ -252,6 +253,7 @@ fn table(scores: &Scores, models: &[Reconstruction], paths: &[PathBuf], truth: O
             fmt_opt(o.centre_mean_rel, 5),
             fmt_opt(o.rotation_mean_deg, 3)
         );
+        let _ = writeln!(out, "scale rel: a session's scale against its model's, minus 1 (its cameras fitted alone)");
         if t.similarities.iter().any(Option::is_none) {
             let _ =
                 writeln!(out, "warning: some models could not be aligned (fewer than 3 truth images, or degenerate)");

@@ -7,6 +7,8 @@ use revisit_core::PairKind;
 use revisit_pipeline::bags::{self, IngestOptions};
 use revisit_pipeline::ingest::{self, SessionSpec};
 use revisit_pipeline::keyframes::{self, KeyframeOptions};
+use revisit_pipeline::navigation::read_navigation_csv;
+use revisit_pipeline::report::ModelFrame;
 use revisit_pipeline::{Report, Workspace};
 
 use crate::commands::models::ToolArgs;
@@ -37,6 +39,17 @@ pub struct Args {
     bags: Vec<SessionSpec>,
     #[command(flatten)]
     bag_options: BagArgs,
+    /// A visit's navigation as NAME=CSV: per image, the camera's position from the vehicle (a
+    /// DVL-aided INS with a position fix, as `revisit synth` writes DIR/nav/NAME.csv). Columns,
+    /// found by their header: image (the file within the visit), x, y, z (metres, in one
+    /// Cartesian frame for every visit, e.g. ENU or NED) and optionally sigma_x, sigma_y, sigma_z
+    /// (standard deviations, metres; 1 m when absent); other columns (attitude) are ignored:
+    /// COLMAP's prior holds a position. Stored as COLMAP pose priors: mapping pulls each camera
+    /// towards its position, weighted by its uncertainty, which fixes every visit's scale and
+    /// placement, and the model comes out in the navigation frame. A visit without --nav joins
+    /// through its images alone. Rows naming images the visit does not hold are skipped.
+    #[arg(long = "nav", value_name = "NAME=CSV")]
+    navigation: Vec<SessionSpec>,
     /// Work folder for the store and every output (created if missing).
     #[arg(long, value_name = "WORK")]
     out: PathBuf,
@@ -118,6 +131,12 @@ fn reconstruct(args: &Args, cancel: &revisit_pipeline::Cancel) -> Result<Report>
         let name = session.name.clone();
         workspace.add_session(session).with_context(|| format!("--session {name}"))?;
     }
+    for nav in &args.navigation {
+        let context = || format!("--nav {}={}", nav.name, nav.dir.display());
+        let fixes = read_navigation_csv(&nav.dir, &nav.name).with_context(context)?;
+        let count = workspace.add_navigation(&nav.name, &fixes).with_context(context)?;
+        tracing::info!("{}: {count} images with a navigation prior", nav.name);
+    }
     Ok(workspace.run(&Bars::default(), cancel)?)
 }
 
@@ -154,6 +173,10 @@ fn print_summary(report: &Report, work: &Path) {
         );
     }
     println!("models: {} (sizes {:?})", report.models, report.model_sizes);
+    if report.mapping.frame == ModelFrame::Navigation {
+        let rms = report.mapping.navigation_rms_m.map_or("-".to_owned(), |m| format!("{m:.3} m"));
+        println!("frame:  the navigation's (metres); cameras sit {rms} RMS from their navigation");
+    }
     for name in &report.unlinked_sessions {
         println!(
             "warning: session {name} could not be linked to the others: fewer than half its images are in \

@@ -14,13 +14,14 @@ use std::process::Command;
 use std::time::Instant;
 
 use anyhow::{bail, Context, Result};
-use revisit_core::{session_of, Reconstruction};
-use revisit_eval::ClickPair;
+use revisit_core::{session_of, NavigationFix, Reconstruction};
+use revisit_eval::{parse_truth_poses_csv, score_truth, ClickPair, TruthOptions};
 use revisit_matching::RollSearch;
 use revisit_pipeline::ingest::{scan_session, SessionSpec};
+use revisit_pipeline::navigation::read_navigation_csv;
 use revisit_pipeline::options::ReconstructOptions;
 use revisit_pipeline::{CrossStrategy, Workspace};
-use revisit_posthoc::{align_visits, parse_navigation_csv, AlignContext, Alignment, NavigationFix, VisitAlignment};
+use revisit_posthoc::{align_visits, AlignContext, Alignment, VisitAlignment};
 use serde::Serialize;
 
 use crate::commands::models::ToolArgs;
@@ -37,32 +38,54 @@ const PUBLISHED: [(&str, f64); 3] = [("ICP", 165.0), ("BUFFER-X", 77.0), ("joint
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 enum Method {
     /// A joint reconstruction with these options.
-    Joint { name: &'static str, cross: CrossStrategy, roll_search: Option<RollSearch>, about: &'static str },
+    Joint {
+        name: &'static str,
+        cross: CrossStrategy,
+        roll_search: Option<RollSearch>,
+        /// Each visit's navigation (`nav/NAME.csv`) as pose priors.
+        navigation: bool,
+        about: &'static str,
+    },
     /// Each visit alone, aligned afterwards.
     Posthoc(Alignment),
 }
 
-const METHODS: [Method; 7] = [
+/// The joint method whose matches `revisit-nav` reuses when it ran first.
+const REVISIT: &str = "revisit";
+
+const METHODS: [Method; 8] = [
     Method::Joint {
-        name: "revisit",
+        name: REVISIT,
         cross: CrossStrategy::Vpr,
         roll_search: None,
+        navigation: false,
         about: "joint: place recognition + learned matching with roll search (Revisit's default)",
     },
     Method::Joint {
+        name: "revisit-nav",
+        cross: CrossStrategy::Vpr,
+        roll_search: None,
+        navigation: true,
+        about: "joint, with each visit's navigation as pose priors (reconstruct --nav); the matches of \
+                revisit when it ran first (only mapping is timed then)",
+    },
+    Method::Joint {
         name: "joint-sift",
+        navigation: false,
         cross: CrossStrategy::Sift,
         roll_search: None,
         about: "joint: SIFT on every cross-visit pair",
     },
     Method::Joint {
         name: "no-roll-search",
+        navigation: false,
         cross: CrossStrategy::Vpr,
         roll_search: Some(RollSearch::Off),
         about: "joint, ablation: Revisit's default matching at roll 0 only",
     },
     Method::Joint {
         name: "no-places",
+        navigation: false,
         cross: CrossStrategy::LearnedCross,
         roll_search: None,
         about: "joint, ablation: the learned matcher on every cross-visit pair, no place recognition",
@@ -149,6 +172,12 @@ struct MethodFigures {
     clicks_scored: usize,
     clicks: usize,
     seconds: f64,
+    /// Against the truth's cameras: each visit's scale over the model's, minus 1.
+    visit_scale_rel_error: BTreeMap<String, Option<f64>>,
+    /// Each visit's median camera rotation error, degrees (the model aligned to the truth as a whole).
+    visit_rotation_deg: BTreeMap<String, Option<f64>>,
+    /// The scale that takes the model onto the truth (1 for a metric model).
+    truth_from_model_scale: Option<f64>,
     /// The scored model (COLMAP binary).
     model: Option<PathBuf>,
     /// Post-hoc methods: where each visit went.
@@ -179,6 +208,14 @@ pub fn run(args: Args) -> Result<()> {
     let truth = args.dataset.join("truth");
     let sessions = super::session_names(&args.dataset)?;
     let clicks = super::truth_clicks(&truth)?;
+    let poses_path = truth.join("poses.csv");
+    let poses = match poses_path.exists() {
+        true => {
+            let text = std::fs::read_to_string(&poses_path).with_context(|| poses_path.display().to_string())?;
+            Some(parse_truth_poses_csv(&text, &poses_path.display().to_string())?)
+        }
+        false => None,
+    };
     let camera = super::calibrated_camera(&truth)?;
     let scaling = match &args.scaling {
         Some(path) => Some(super::read_json(path).with_context(|| format!("--scaling {}", path.display()))?),
@@ -203,11 +240,18 @@ pub fn run(args: Args) -> Result<()> {
         }
         options
     };
-    let reconstruct = |dir: &Path, options: ReconstructOptions, visits: &[String]| -> Result<Option<Reconstruction>> {
+    let reconstruct = |dir: &Path,
+                       options: ReconstructOptions,
+                       visits: &[String],
+                       navigation: Option<&[NavigationFix]>|
+     -> Result<Option<Reconstruction>> {
         let mut workspace = Workspace::open(dir, options, args.tools.tools())?;
         for session in visits {
             workspace
                 .add_session(scan_session(&SessionSpec { name: session.clone(), dir: sessions_dir.join(session) })?)?;
+            if let Some(navigation) = navigation {
+                workspace.add_navigation(session, navigation)?;
+            }
         }
         let report = workspace.run(&Bars::default(), &cancel)?;
         match &report.chosen_model {
@@ -221,9 +265,24 @@ pub fn run(args: Args) -> Result<()> {
     for method in methods {
         println!("== {}", method.name());
         let (model, visits, mut failure, seconds) = match method {
-            Method::Joint { name, cross, roll_search, .. } => {
+            Method::Joint { name, cross, roll_search, navigation, .. } => {
+                let navigation = match navigation {
+                    false => None,
+                    true => match read_navigation(&args.dataset, &sessions)? {
+                        Ok(navigation) => Some(navigation),
+                        Err(missing) => {
+                            let failure = format!("no navigation: {} does not exist", missing.display());
+                            figures.push(failed_row(method, failure, &sessions, &clicks, 0.0));
+                            continue;
+                        }
+                    },
+                };
+                let dir = work.join(name);
+                if navigation.is_some() {
+                    start_from_store(&work.join(REVISIT), &dir)?;
+                }
                 let started = Instant::now();
-                let model = reconstruct(&work.join(name), options_for(cross, roll_search), &sessions)
+                let model = reconstruct(&dir, options_for(cross, roll_search), &sessions, navigation.as_deref())
                     .with_context(|| format!("method {name}"))?;
                 let failure = model.is_none().then(|| "COLMAP made no model".to_owned());
                 (model, Vec::new(), failure, started.elapsed().as_secs_f64())
@@ -237,7 +296,7 @@ pub fn run(args: Args) -> Result<()> {
                         for session in &sessions {
                             let dir = work.join("alone").join(session);
                             let options = options_for(CrossStrategy::None, None);
-                            let model = reconstruct(&dir, options, std::slice::from_ref(session))
+                            let model = reconstruct(&dir, options, std::slice::from_ref(session), None)
                                 .with_context(|| format!("visit {session} alone"))?;
                             models.push((session.clone(), model));
                         }
@@ -282,6 +341,14 @@ pub fn run(args: Args) -> Result<()> {
             row.mean_px = summary.mean_px;
             row.clicks_scored = summary.scored;
             row.errors_px = summary.errors_px;
+            if let Some(poses) = &poses {
+                let t = score_truth(std::slice::from_ref(&model), poses, &TruthOptions::default());
+                for (name, visit) in &t.sessions {
+                    row.visit_scale_rel_error.insert(name.clone(), visit.scale_rel_error);
+                    row.visit_rotation_deg.insert(name.clone(), visit.pose.rotation_median_deg);
+                }
+                row.truth_from_model_scale = t.similarities.first().copied().flatten().map(|s| s.scale);
+            }
             row.cloud = Some(cloud(&model, &sessions));
             row.model = Some(dir);
         }
@@ -321,6 +388,9 @@ fn failed_row(
         clicks_scored: 0,
         clicks: clicks.iter().map(|p| p.uv_clicked.len()).sum(),
         seconds,
+        visit_scale_rel_error: BTreeMap::new(),
+        visit_rotation_deg: BTreeMap::new(),
+        truth_from_model_scale: None,
         model: None,
         visits: Vec::new(),
         errors_px: Vec::new(),
@@ -335,6 +405,25 @@ fn failed_visits(visits: &[VisitAlignment]) -> Option<String> {
     (!failed.is_empty()).then(|| failed.join("; "))
 }
 
+/// A new work folder `to` starts with a copy of the store of `from` (a finished joint method
+/// with the same options), so that it redoes no matching; nothing happens when `to` has a store
+/// or `from` has none.
+fn start_from_store(from: &Path, to: &Path) -> Result<()> {
+    let (store, target) = (from.join("database.db"), to.join("database.db"));
+    if target.exists() || !store.exists() {
+        return Ok(());
+    }
+    std::fs::create_dir_all(to).with_context(|| format!("creating {}", to.display()))?;
+    // Copied beside, then renamed: a killed copy leaves no half store.
+    let partial = to.join("database.db.partial");
+    if partial.exists() {
+        std::fs::remove_file(&partial).with_context(|| format!("removing {}", partial.display()))?;
+    }
+    revisit_store::Store::open_read_only(&store)?.copy_to(&partial)?;
+    std::fs::rename(&partial, &target).with_context(|| format!("writing {}", target.display()))?;
+    Ok(())
+}
+
 /// Every visit's `DATASET/nav/NAME.csv`, or the first that does not exist.
 fn read_navigation(dataset: &Path, sessions: &[String]) -> Result<Result<Vec<NavigationFix>, PathBuf>> {
     let mut fixes = Vec::new();
@@ -343,8 +432,7 @@ fn read_navigation(dataset: &Path, sessions: &[String]) -> Result<Result<Vec<Nav
         if !path.exists() {
             return Ok(Err(path));
         }
-        let text = std::fs::read_to_string(&path).with_context(|| path.display().to_string())?;
-        fixes.extend(parse_navigation_csv(&text, session, &path.display().to_string())?);
+        fixes.extend(read_navigation_csv(&path, session)?);
     }
     Ok(Ok(fixes))
 }
@@ -369,24 +457,32 @@ fn cloud(model: &Reconstruction, sessions: &[String]) -> Cloud {
 fn print_table(c: &Comparison) {
     println!();
     println!(
-        "{:<16} {:>10} {:>10} {:>9} {:>8} {:>9}  failure",
-        "method", "median px", "mean px", "clicks", "visits", "seconds"
+        "{:<16} {:>10} {:>10} {:>9} {:>8} {:>11} {:>9} {:>9}  failure",
+        "method", "median px", "mean px", "clicks", "visits", "visit scale", "rot deg", "seconds"
     );
     let px = |v: Option<f64>| v.map_or("-".to_owned(), |v| format!("{v:.2}"));
     for m in &c.methods {
+        let worst =
+            |values: &BTreeMap<String, Option<f64>>| values.values().flatten().map(|v| v.abs()).max_by(f64::total_cmp);
         println!(
-            "{:<16} {:>10} {:>10} {:>9} {:>8} {:>9.1}  {}",
+            "{:<16} {:>10} {:>10} {:>9} {:>8} {:>11} {:>9} {:>9.1}  {}",
             m.method,
             px(m.median_px),
             px(m.mean_px),
             format!("{}/{}", m.clicks_scored, m.clicks),
             format!("{}/{}", m.sessions_merged, m.sessions),
+            worst(&m.visit_scale_rel_error).map_or("-".to_owned(), |v| format!("{:.2}%", 100.0 * v)),
+            px(worst(&m.visit_rotation_deg)),
             m.seconds,
             m.failure.as_deref().unwrap_or("")
         );
     }
     let published: Vec<String> = PUBLISHED.iter().map(|(name, px)| format!("{name} {px} px")).collect();
     println!("published (reef, median cross-visit error): {}", published.join(", "));
+    println!(
+        "visit scale: the worst visit's scale against its model's (by the truth's cameras); rot deg: the worst \
+         visit's median camera rotation error"
+    );
     let median = |name: &str| c.methods.iter().find(|m| m.method == name).and_then(|m| m.median_px);
     if let Some(revisit) = median("revisit") {
         for m in c.methods.iter().filter(|m| m.method.starts_with("posthoc")) {
