@@ -18,6 +18,10 @@ import time
 from pathlib import Path
 
 
+# The smallest standard deviation a de-biased navigation prior is given, metres.
+MIN_DRIFT_SIGMA_M = 0.01
+
+
 def exit_with_parent() -> None:
     """Ends this process when the one that started it dies (a mapper node killed with SIGKILL
     must not leave COLMAP writing into the folder its restart maps again)."""
@@ -36,26 +40,128 @@ def all_cameras(database: Path) -> set:
         return {row[0] for row in db.execute("SELECT camera_id FROM cameras")}
 
 
-def prior_positions(database: Path) -> dict:
-    """Each image's prior position (navigation), by image id."""
+def read_priors(database: Path) -> dict:
+    """Each image's pose prior (navigation) with a position, by image id."""
     import pycolmap
-    import numpy as np
 
     db = pycolmap.Database.open(str(database))
     try:
-        return {p.corr_data_id.id: np.asarray(p.position) for p in db.read_all_pose_priors() if p.has_position()}
+        return {p.corr_data_id.id: p for p in db.read_all_pose_priors() if p.has_position()}
     finally:
         db.close()
 
 
-def navigation_rms_m(model, priors: dict):
+def umeyama(src, dst):
+    """The similarity (scale, rotation, translation) taking points src onto dst, least squares."""
+    import numpy as np
+
+    mean_src, mean_dst = src.mean(0), dst.mean(0)
+    a, b = src - mean_src, dst - mean_dst
+    u, singular, vt = np.linalg.svd(b.T @ a / len(src))
+    d = np.eye(3)
+    d[2, 2] = np.sign(np.linalg.det(u @ vt))
+    rotation = u @ d @ vt
+    scale = np.trace(np.diag(singular) @ d) / (a ** 2).sum(1).mean()
+    return scale, rotation, mean_dst - scale * rotation @ mean_src
+
+
+def visit_of(image):
+    return image.name.split("/", 1)[0]
+
+
+def with_priors(model, priors):
+    """(image ids, camera centres, prior positions) of the registered images with a prior."""
+    import numpy as np
+
+    ids = sorted(i for i, image in model.images.items() if image.has_pose and i in priors)
+    centres = np.array([model.images[i].projection_center() for i in ids]).reshape(-1, 3)
+    positions = np.array([priors[i].position for i in ids]).reshape(-1, 3)
+    return ids, centres, positions
+
+
+def covariance(prior):
+    """A prior's position covariance, None when unknown."""
+    import numpy as np
+
+    c = np.asarray(prior.position_covariance)
+    return c if np.all(np.isfinite(c)) else None
+
+
+def place_on_navigation(model, priors, constant, seed, refine=True):
+    """Places `model` on the navigation: a similarity onto the prior positions, then (`refine`)
+    bundle adjustment with each camera's prior, per visit de-biased.
+
+    A visit's navigation carries one error common to all its images (its position fix, e.g.
+    USBL) and one that grows along the track (dead-reckoning drift). The images tie visits to
+    each other far more tightly than a fix does, so each visit's common offset is estimated from
+    the images (its mean gap to the model after the similarity) and taken out of its priors, and
+    each prior is weighted by the part of its covariance beyond the visit's smallest (the drift):
+    the navigation then fixes the model's frame, metric scale and every visit's shape and scale,
+    and the images the visits' placement relative to each other. Returns, per visit, the offset
+    taken out (metres) and its size in standard deviations of the visit's common error (None
+    when unknown); None when fewer than 3 registered images have a prior."""
+    import numpy as np
+    import pycolmap
+
+    ids, centres, positions = with_priors(model, priors)
+    if len(ids) < 3:
+        return None
+    scale, rotation, translation = umeyama(centres, positions)
+    model.transform(pycolmap.Sim3d(scale, pycolmap.Rotation3d(rotation), translation))
+    visits = {}
+    for i in ids:
+        visits.setdefault(visit_of(model.images[i]), []).append(i)
+    common = {}
+    for visit, members in visits.items():
+        known = [covariance(priors[i]) for i in members]
+        common[visit] = None if any(c is None for c in known) else np.min([np.diag(c) for c in known], axis=0)
+    rounds = 3 if refine else 1
+    for _ in range(rounds):
+        ids, centres, positions = with_priors(model, priors)
+        row = {i: k for k, i in enumerate(ids)}
+        offsets = {v: np.mean([positions[row[i]] - centres[row[i]] for i in m], axis=0) for v, m in visits.items()}
+        if not refine:
+            break
+        adjusted = []
+        for i in ids:
+            prior, visit = priors[i], visit_of(model.images[i])
+            full = covariance(prior)
+            drift = None if full is None or common[visit] is None else np.diag(
+                np.maximum(np.diag(full) - common[visit], MIN_DRIFT_SIGMA_M ** 2))
+            debiased = pycolmap.PosePrior(position=positions[row[i]] - offsets[visit],
+                                          coordinate_system=prior.coordinate_system)
+            if drift is not None:
+                debiased.position_covariance = drift
+            debiased.corr_data_id = prior.corr_data_id
+            adjusted.append(debiased)
+        options = pycolmap.BundleAdjustmentOptions()
+        config = pycolmap.BundleAdjustmentConfig()
+        for i, image in model.images.items():
+            if image.has_pose:
+                config.add_image(i)
+        for camera_id in model.cameras:
+            if camera_id in constant:
+                config.set_constant_cam_intrinsics(camera_id)
+        prior_options = pycolmap.PosePriorBundleAdjustmentOptions()
+        prior_options.ceres.prior_position_loss_function_type = pycolmap.LossFunctionType.CAUCHY
+        prior_options.alignment_ransac.random_seed = seed
+        pycolmap.create_pose_prior_bundle_adjuster(options, prior_options, config, adjusted, model).solve()
+    placed = {}
+    for visit, offset in offsets.items():
+        sigmas = None
+        if common[visit] is not None:
+            sigmas = float(np.sqrt(np.sum(offset ** 2 / np.maximum(common[visit], 1e-12))))
+        placed[visit] = {"offset_m": float(np.linalg.norm(offset)), "offset_sigmas": sigmas}
+    return placed
+
+
+def navigation_rms_m(model, priors):
     """RMS distance between the registered cameras' centres and their prior positions, in the
     model's units (metres when it is placed on the priors); None without priors."""
     import numpy as np
 
-    gaps = [np.linalg.norm(img.projection_center() - priors[img.image_id])
-            for img in model.images.values() if img.has_pose and img.image_id in priors]
-    return float(np.sqrt(np.mean(np.square(gaps)))) if gaps else None
+    ids, centres, positions = with_priors(model, priors)
+    return float(np.sqrt(np.mean(np.sum((centres - positions) ** 2, axis=1)))) if ids else None
 
 
 def peak_rss_mib():
@@ -87,7 +193,7 @@ def main() -> int:
     parser.add_argument("--constant-cameras", default="",
                         help="comma-separated ids of calibrated cameras, whose intrinsics are held fixed")
     parser.add_argument("--pose-priors", action="store_true",
-                        help="place the model on the database's pose priors (navigation)")
+                        help="place the models on the database's pose priors (navigation) after mapping")
     args = parser.parse_args()
 
     try:
@@ -111,11 +217,6 @@ def main() -> int:
         options.mapper.abs_pose_min_num_inliers = args.min_pose_inliers
         options.constant_cameras = constant
         options.mapper.constant_cameras = constant
-        if args.pose_priors:
-            # Bundle adjustment with each camera's prior position, weighted by its covariance,
-            # Cauchy-robust (a navigation glitch pulls little); the model ends in the priors' frame.
-            options.use_prior_position = True
-            options.use_robust_loss_on_prior_position = True
         raw = args.output / "raw"
         raw.mkdir()
         models = pycolmap.incremental_mapping(
@@ -140,11 +241,14 @@ def main() -> int:
     shutil.rmtree(raw, ignore_errors=True)
 
     ordered = sorted(models.values(), key=lambda r: (-r.num_reg_images(), -r.num_points3D()))
-    # GLOMAP in pycolmap 4.2 has no pose-prior adjustment: its models stay in their own frame.
-    on_priors = args.pose_priors and args.engine == "incremental"
-    priors = prior_positions(args.database) if on_priors else {}
+    # Mapped from the images alone, then placed on the navigation: the largest model refined
+    # with its priors, the others (visits not linked to it) only moved onto theirs.
+    priors = read_priors(args.database) if args.pose_priors else {}
+    placements = [place_on_navigation(model, priors, constant, args.seed, refine=(k == 0)) if priors else None
+                  for k, model in enumerate(ordered)]
+    on_priors = bool(ordered) and placements[0] is not None
     summary = []
-    for k, model in enumerate(ordered):
+    for k, (model, placed) in enumerate(zip(ordered, placements)):
         path = args.output / str(k)
         path.mkdir()
         model.write_binary(str(path))
@@ -153,7 +257,8 @@ def main() -> int:
             "registered_images": sorted(img.name for img in model.images.values() if img.has_pose),
             "points": model.num_points3D(),
             "mean_reprojection_error_px": model.compute_mean_reprojection_error(),
-            "navigation_rms_m": navigation_rms_m(model, priors),
+            "navigation_rms_m": navigation_rms_m(model, priors) if placed else None,
+            "navigation_offsets": placed or {},
         })
     print(json.dumps({"seconds": time.monotonic() - started, "models": summary, "on_priors": on_priors,
                       "peak_rss_mib": peak_rss_mib()}))

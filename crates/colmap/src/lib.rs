@@ -12,7 +12,7 @@ pub mod model;
 
 pub use mapper::{
     check_python, run_mapper, run_until_cancelled, Engine, Mapped, MapperError, MapperOptions, MapperRun, ModelSummary,
-    MIN_POSE_PRIORS, PYTHON_ENV,
+    NavigationOffset, MIN_POSE_PRIORS, PYTHON_ENV,
 };
 
 pub use model::{

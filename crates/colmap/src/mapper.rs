@@ -6,6 +6,7 @@
 //! pycolmap. (The post-hoc baselines, `revisit-posthoc`, start Python the same
 //! way, through [`run_until_cancelled`].)
 
+use std::collections::BTreeMap;
 use std::io::Read;
 use std::path::{Path, PathBuf};
 use std::process::{Command, Output, Stdio};
@@ -124,6 +125,32 @@ pub struct ModelSummary {
     /// priors, metres (`None` when the model was not placed on priors).
     #[serde(default)]
     pub navigation_rms_m: Option<f64>,
+    /// Per visit, how far its navigation sat from where the images put it
+    /// (the offset taken out of its priors); empty when not placed on priors.
+    #[serde(default)]
+    pub navigation_offsets: BTreeMap<String, NavigationOffset>,
+}
+
+/// A visit's navigation against the images: the mean offset of its
+/// positions from its cameras in the model placed on the navigation.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+pub struct NavigationOffset {
+    pub offset_m: f64,
+    /// The offset in standard deviations of the error common to the visit's
+    /// positions (its smallest covariance: the position fix); `None` when
+    /// the navigation gives no uncertainty.
+    pub offset_sigmas: Option<f64>,
+}
+
+impl NavigationOffset {
+    /// Beyond this many standard deviations a visit's placement by the images
+    /// and by its navigation disagree (a 3D offset: 99% of honest fixes lie within).
+    pub const DISAGREES_SIGMAS: f64 = 3.5;
+
+    /// Whether the images put the visit where its navigation cannot have been.
+    pub fn disagrees(&self) -> bool {
+        self.offset_sigmas.is_some_and(|s| s > Self::DISAGREES_SIGMAS)
+    }
 }
 
 /// What one mapper run produced.
@@ -169,16 +196,17 @@ pub struct MapperRun<'a> {
     /// engine can hold all cameras fixed or none: it refines them all
     /// unless every camera is listed.
     pub constant_cameras: &'a [u32],
-    /// Place the model on the store's pose priors (navigation): bundle
-    /// adjustment pulls each prior-holding camera towards its position,
-    /// weighted by its covariance (robustly), and the result is in the
-    /// priors' frame and metres. COLMAP uses them with at least
-    /// [`MIN_POSE_PRIORS`] registered.
+    /// Place the models on the store's pose priors (navigation) after
+    /// mapping from the images: a similarity onto the priors (metres, their
+    /// frame), then, for the largest model, COLMAP's pose-prior bundle
+    /// adjustment with each visit's priors de-biased by the visit's common
+    /// offset and weighted by their drift (see the script). Needs at least
+    /// [`MIN_POSE_PRIORS`] registered images with a prior.
     pub pose_priors: bool,
 }
 
-/// The fewest registered images with a pose prior with which COLMAP's bundle
-/// adjustment uses the priors.
+/// The fewest registered images with a pose prior with which a model is
+/// placed on the priors.
 pub const MIN_POSE_PRIORS: usize = 3;
 
 /// Maps the store into `run.output/<k>`, k = 0, 1, ... by decreasing size,

@@ -5,6 +5,7 @@
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 
+use revisit_colmap::NavigationOffset;
 use revisit_core::{CameraId, PairKind};
 use serde::{Deserialize, Serialize};
 
@@ -110,6 +111,9 @@ pub struct MappingReport {
     /// RMS distance between the chosen model's cameras and their navigation, metres.
     #[serde(default)]
     pub navigation_rms_m: Option<f64>,
+    /// Per visit of the chosen model: how far its navigation sat from where the images put it.
+    #[serde(default)]
+    pub navigation_offsets: BTreeMap<String, NavigationOffset>,
 }
 
 /// The frame of a model's coordinates.

@@ -386,6 +386,7 @@ impl Workspace {
                     false => ModelFrame::Arbitrary,
                 },
                 navigation_rms_m: chosen_model.and_then(|m| m.navigation_rms_m),
+                navigation_offsets: chosen_model.map(|m| m.navigation_offsets.clone()).unwrap_or_default(),
             },
             seconds: figures.seconds,
             peak_rss_mib: figures.peak_rss_mib,

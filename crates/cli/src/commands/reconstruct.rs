@@ -177,6 +177,14 @@ fn print_summary(report: &Report, work: &Path) {
         let rms = report.mapping.navigation_rms_m.map_or("-".to_owned(), |m| format!("{m:.3} m"));
         println!("frame:  the navigation's (metres); cameras sit {rms} RMS from their navigation");
     }
+    for (visit, offset) in report.mapping.navigation_offsets.iter().filter(|(_, o)| o.disagrees()) {
+        println!(
+            "warning: the images place visit {visit} {:.2} m from its navigation ({:.1} standard deviations of its \
+             fix): its link to the other visits or its navigation is suspect",
+            offset.offset_m,
+            offset.offset_sigmas.unwrap_or_default()
+        );
+    }
     for name in &report.unlinked_sessions {
         println!(
             "warning: session {name} could not be linked to the others: fewer than half its images are in \
