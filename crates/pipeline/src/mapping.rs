@@ -129,7 +129,7 @@ fn same_priors(before: &str, now: &str) -> bool {
 /// differs and the engine is incremental, the previous largest model is
 /// extended with the new images, unless pairs it was built with are now set
 /// aside (a model holds its pairs' tracks: it is rebuilt without them) or the
-/// navigation priors changed (the model is placed on them from the start).
+/// navigation priors changed (it was refined on the old ones).
 /// A cancelled run leaves the previous models as they were.
 pub fn map(
     python: &Path,
