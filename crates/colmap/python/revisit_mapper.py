@@ -87,7 +87,7 @@ def covariance(prior):
     return c if np.all(np.isfinite(c)) else None
 
 
-def place_on_navigation(model, priors, constant, seed, refine=True):
+def place_on_navigation(model, priors, constant, seed, threads, refine=True):
     """Places `model` on the navigation: a similarity onto the prior positions, then (`refine`)
     bundle adjustment with each camera's prior, per visit de-biased.
 
@@ -135,6 +135,8 @@ def place_on_navigation(model, priors, constant, seed, refine=True):
             debiased.corr_data_id = prior.corr_data_id
             adjusted.append(debiased)
         options = pycolmap.BundleAdjustmentOptions()
+        # Threads sum in a varying order: one (the default) keeps the result repeatable.
+        options.ceres.solver_options.num_threads = threads
         config = pycolmap.BundleAdjustmentConfig()
         for i, image in model.images.items():
             if image.has_pose:
@@ -244,7 +246,8 @@ def main() -> int:
     # Mapped from the images alone, then placed on the navigation: the largest model refined
     # with its priors, the others (visits not linked to it) only moved onto theirs.
     priors = read_priors(args.database) if args.pose_priors else {}
-    placements = [place_on_navigation(model, priors, constant, args.seed, refine=(k == 0)) if priors else None
+    placements = [place_on_navigation(model, priors, constant, args.seed, args.threads, refine=(k == 0))
+                  if priors else None
                   for k, model in enumerate(ordered)]
     on_priors = bool(ordered) and placements[0] is not None
     summary = []
