@@ -32,13 +32,16 @@ mod tests {
 
     #[test]
     fn a_peak_is_reset_and_follows_an_allocation() {
+        // Other tests run on other threads of this process and allocate, free
+        // and reset the peak too: the margins are wide for that.
+        reset_peak();
         let Some(before) = peak_rss_mib() else { return }; // not Linux
-        let touched: Vec<u8> = vec![1; 64 << 20];
+        let touched = std::hint::black_box(vec![1u8; 128 << 20]);
         let during = peak_rss_mib().unwrap();
-        assert!(during >= before + 60.0, "{before} -> {during} MiB after touching 64 MiB");
+        assert!(during >= before + 96.0, "{before} -> {during} MiB after touching 128 MiB");
         drop(touched);
         reset_peak();
         let after = peak_rss_mib().unwrap();
-        assert!(after < during - 60.0, "{during} -> {after} MiB after the reset");
+        assert!(after < during - 96.0, "{during} -> {after} MiB after the reset");
     }
 }
