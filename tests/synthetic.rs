@@ -3,7 +3,36 @@
 
 mod common;
 
-use common::{read_json, run_ok};
+use common::{read_json, run_err, run_ok};
+
+#[test]
+fn growing_corals_are_in_the_truth_of_changes() {
+    let dir = tempfile::tempdir().unwrap();
+    let reef = dir.path().join("reef");
+    let reef_s = reef.to_str().unwrap();
+    let synth = ["synth", "--out", reef_s, "--sessions", "2", "--images-per-session", "2", "--size", "64x48"];
+    run_ok(&[&synth[..], &["--change", "strong", "--growth", "branching=0.3"]].concat());
+    let mut table = csv::Reader::from_path(reef.join("truth/changes_s1-s2.csv")).unwrap();
+    let header = table.headers().unwrap().clone();
+    let column = |name: &str| header.iter().position(|h| h == name).unwrap();
+    let (kind, change, growth) = (column("kind"), column("change"), column("growth"));
+    let mut grown_branching = 0;
+    for row in table.records().map(Result::unwrap) {
+        let g: f64 = row[growth].parse().unwrap();
+        if row[kind] == *"branching_coral" && row[change] == *"grown" {
+            assert!((0.15..=0.45).contains(&g), "{row:?}");
+            grown_branching += 1;
+        }
+        if row[kind] == *"rock" || row[kind] == *"pebble" {
+            assert_eq!(g, 0.0, "{row:?}");
+        }
+    }
+    assert!(grown_branching > 5, "{grown_branching} branching corals grew");
+
+    let stderr = run_err(&[&synth[..], &["--growth", "branching=fast"]].concat());
+    let first = stderr.lines().next().unwrap_or_default();
+    assert!(first.contains("--growth") && first.contains("\"fast\" is not a number"), "{stderr}");
+}
 
 #[test]
 fn unchanged_reef_reconstructs_to_subpixel_cross_visit_error() {

@@ -32,7 +32,7 @@ pub use survey::{
     plan, ImageTruth, NavigationFix, NavigationSample, SessionIntrinsics, SessionPlan, Survey, NAV_DRIFT_PER_M,
     NAV_FIX_SIGMA_M,
 };
-pub use truth::{EvaluationOptions, EvaluationPair, Overlap};
+pub use truth::{ChangeKind, EvaluationOptions, EvaluationPair, Overlap, StructureChange};
 
 /// Smallest image the renderer accepts (pixels).
 pub const MIN_WIDTH: u32 = 64;
@@ -106,6 +106,10 @@ pub struct SynthOptions {
     /// sequence, each step subdivided along the track, and a session holds
     /// `(images_per_session - 1) * frames_per_step + 1` frames.
     pub frames_per_step: usize,
+    /// Growth of every living coral per visit; `None` keeps the change grade's own (see
+    /// [`ChangeGrade`]). Draws of its own: the same seed with and without growth differs in
+    /// growth only.
+    pub growth: Option<Growth>,
 }
 
 impl Default for SynthOptions {
@@ -118,6 +122,7 @@ impl Default for SynthOptions {
             width: 640,
             height: 480,
             frames_per_step: 1,
+            growth: None,
         }
     }
 }
@@ -134,10 +139,94 @@ impl SynthOptions {
         if self.images_per_session < 2 {
             return Err(SynthError::TooFewImages(self.images_per_session));
         }
+        if let Some(growth) = &self.growth {
+            growth.check()?;
+        }
         if self.width < MIN_WIDTH || self.height < MIN_HEIGHT || self.width > MAX_SIDE || self.height > MAX_SIDE {
             return Err(SynthError::BadImageSize { width: self.width, height: self.height });
         }
         Ok(())
+    }
+}
+
+/// Radial growth of a living coral per visit, a fraction of the colony's size by coral type
+/// (height grows by the same fraction); each colony grows by its type's fraction times a
+/// factor drawn from 0.5-1.5.
+///
+/// [`Growth::YEARLY`] is a year of growth at typical Indo-Pacific rates for the colony sizes of
+/// this reef (radius 0.14-0.64 m heads, 0.3-0.8 m tables, 0.12-0.45 m branching colonies):
+/// massive *Porites* heads extend about 1 cm a year (Lough & Barnes 2000, J. Exp. Mar. Biol.
+/// Ecol. 245), tabular and branching *Acropora* 5-10 cm (Pratchett et al. 2015, Oceanogr. Mar.
+/// Biol. Annu. Rev. 53), which on these sizes is about 4%, 12% and 25% a year.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Growth {
+    /// Massive coral heads.
+    pub head: f64,
+    /// Tabular corals.
+    pub table: f64,
+    /// Branching corals.
+    pub branching: f64,
+}
+
+impl Growth {
+    pub const NONE: Growth = Growth { head: 0.0, table: 0.0, branching: 0.0 };
+    pub const YEARLY: Growth = Growth { head: 0.04, table: 0.12, branching: 0.25 };
+    /// The largest fraction a visit may add.
+    pub const MAX: f64 = 1.0;
+
+    /// The fraction of a coral kind; 0 for rocks and pebbles.
+    pub fn fraction(&self, kind: ObjectKind) -> f64 {
+        match kind {
+            ObjectKind::CoralHead => self.head,
+            ObjectKind::CoralTable => self.table,
+            ObjectKind::BranchingCoral => self.branching,
+            ObjectKind::Rock | ObjectKind::Pebble => 0.0,
+        }
+    }
+
+    fn check(&self) -> Result<(), SynthError> {
+        for (name, value) in [("head", self.head), ("table", self.table), ("branching", self.branching)] {
+            if !(0.0..=Self::MAX).contains(&value) {
+                return Err(SynthError::BadGrowth(format!("{name}={value} is outside 0-{}", Self::MAX)));
+            }
+        }
+        Ok(())
+    }
+}
+
+impl FromStr for Growth {
+    type Err = SynthError;
+
+    /// `yearly`, `none`, one fraction for every coral type (`0.1`), or per type
+    /// (`head=0.04,table=0.12,branching=0.25`, types left out keep the yearly rate).
+    fn from_str(text: &str) -> Result<Self, Self::Err> {
+        let bad = |why: &str| SynthError::BadGrowth(format!("{text:?}: {why}"));
+        let number = |s: &str| s.trim().parse::<f64>().map_err(|_| bad(&format!("{s:?} is not a number")));
+        let growth = match text.trim() {
+            "yearly" => Self::YEARLY,
+            "none" => Self::NONE,
+            t if !t.contains('=') => {
+                let f = number(t)?;
+                Growth { head: f, table: f, branching: f }
+            }
+            t => {
+                let mut growth = Self::YEARLY;
+                for part in t.split(',') {
+                    let (name, value) = part.split_once('=').ok_or_else(|| bad("expected TYPE=FRACTION"))?;
+                    let slot = match name.trim() {
+                        "head" => &mut growth.head,
+                        "table" => &mut growth.table,
+                        "branching" => &mut growth.branching,
+                        other => return Err(bad(&format!("unknown coral type {other:?} (head, table, branching)"))),
+                    };
+                    *slot = number(value)?;
+                }
+                growth
+            }
+        };
+        growth.check()?;
+        Ok(growth)
     }
 }
 
@@ -153,6 +242,8 @@ pub enum SynthError {
         "image size {width}x{height} is out of range: at least {MIN_WIDTH}x{MIN_HEIGHT}, at most {MAX_SIDE} per side"
     )]
     BadImageSize { width: u32, height: u32 },
+    #[error("bad growth {0}; expected yearly, none, a fraction per visit, or head=F,table=F,branching=F")]
+    BadGrowth(String),
     #[error("unknown change grade {0:?}: expected none, mild, strong or storm")]
     UnknownChange(String),
     #[error("image index {index} is out of range: the survey has {count} images")]

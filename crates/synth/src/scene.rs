@@ -10,7 +10,7 @@ use rayon::prelude::*;
 use serde::Serialize;
 
 use crate::noise::{self, cellular, fbm, gradient, lerp3, ridged, scale3, smoothstep, unit, SplitMix64};
-use crate::ChangeGrade;
+use crate::{ChangeGrade, Growth};
 
 /// Spacing of the geometry grid (mesh vertices), metres.
 pub const CELL_M: f64 = 0.0125;
@@ -33,6 +33,16 @@ pub enum ObjectKind {
 }
 
 impl ObjectKind {
+    pub fn name(self) -> &'static str {
+        match self {
+            Self::Rock => "rock",
+            Self::Pebble => "pebble",
+            Self::CoralHead => "coral_head",
+            Self::CoralTable => "coral_table",
+            Self::BranchingCoral => "branching_coral",
+        }
+    }
+
     pub fn is_coral(self) -> bool {
         matches!(self, Self::CoralHead | Self::CoralTable | Self::BranchingCoral)
     }
@@ -574,16 +584,26 @@ fn rates(grade: ChangeGrade) -> Option<ChangeRates> {
     }
 }
 
-/// The structures of the next session, from the previous one.
+/// The structures of the next session, from the previous one. `growth`, when
+/// given, replaces the grade's growth and draws from a stream of its own.
 pub(crate) fn evolve(
     site: &Site,
     previous: &[ObjectState],
     grade: ChangeGrade,
+    growth: Option<&Growth>,
     seed: u64,
     session: usize,
 ) -> Vec<ObjectState> {
+    let mut growth_rng = SplitMix64::stream(seed, 0x6A0E_0000 + session as u64);
+    let mut grow = |o: &mut ObjectState| {
+        if let Some(growth) = growth {
+            o.growth *= 1.0 + growth.fraction(o.kind) * growth_rng.range(0.5, 1.5);
+        }
+    };
     let Some(rates) = rates(grade) else {
-        return previous.to_vec();
+        let mut next = previous.to_vec();
+        next.iter_mut().for_each(&mut grow);
+        return next;
     };
     let mut rng = SplitMix64::stream(seed, 0xC4A9_0000 + session as u64);
     let spread = site.half_m - 0.2;
@@ -604,9 +624,15 @@ pub(crate) fn evolve(
             o.angle_rad += rng.range(-rates.move_rad, rates.move_rad);
             settle(&mut o, site);
         }
+        // The grade's growth is drawn even when `growth` replaces it, so that
+        // everything else stays as the grade's own survey has it.
         if coral && rng.chance(rates.growth_p) {
-            o.growth *= rng.range(rates.growth.0, rates.growth.1);
+            let factor = rng.range(rates.growth.0, rates.growth.1);
+            if growth.is_none() {
+                o.growth *= factor;
+            }
         }
+        grow(&mut o);
         if coral && rng.chance(rates.bleach_p) {
             o.bleach = (o.bleach + rng.range(rates.bleach.0, rates.bleach.1)).min(1.0);
         }

@@ -316,7 +316,7 @@ pub fn plan(options: &SynthOptions) -> Result<Survey, SynthError> {
     let mut objects = vec![scene::initial_objects(&site, options.seed)];
     for s in 1..options.sessions {
         let previous = objects.last().map(Vec::as_slice).unwrap_or(&[]);
-        let next = scene::evolve(&site, previous, options.change, options.seed, s);
+        let next = scene::evolve(&site, previous, options.change, options.growth.as_ref(), options.seed, s);
         objects.push(next);
     }
     let count = objects.iter().flatten().map(|o| o.id).max().unwrap_or(0) as usize;

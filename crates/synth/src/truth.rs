@@ -10,8 +10,98 @@ use serde::Serialize;
 
 use crate::noise::SplitMix64;
 use crate::render::NO_OBJECT;
+use crate::scene::{ObjectKind, ObjectState};
 use crate::survey::Survey;
 use crate::SynthError;
+
+/// What became of one structure between two visits, the most telling first:
+/// a moved coral may also have grown and bleached.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum ChangeKind {
+    Removed,
+    New,
+    Moved,
+    Grown,
+    Bleached,
+    Unchanged,
+}
+
+impl ChangeKind {
+    pub fn name(self) -> &'static str {
+        match self {
+            Self::Removed => "removed",
+            Self::New => "new",
+            Self::Moved => "moved",
+            Self::Grown => "grown",
+            Self::Bleached => "bleached",
+            Self::Unchanged => "unchanged",
+        }
+    }
+}
+
+/// One structure's change between two visits, for scoring a change map.
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct StructureChange {
+    pub id: u32,
+    pub kind: ObjectKind,
+    pub change: ChangeKind,
+    /// Centre in the earlier visit (`None` when new), world metres.
+    pub centre_before_m: Option<[f64; 2]>,
+    /// Centre in the later visit (`None` when removed), world metres.
+    pub centre_after_m: Option<[f64; 2]>,
+    /// Largest horizontal reach from its centre in either visit, metres.
+    pub reach_m: f64,
+    /// Horizontal displacement of the centre, metres (0 when removed or new).
+    pub moved_m: f64,
+    /// Turn about the vertical, degrees (0 when removed or new).
+    pub turned_deg: f64,
+    /// Radial (and vertical) growth: the later size over the earlier, minus 1.
+    pub growth: f64,
+    /// Change of the height of its top above its base, metres.
+    pub height_change_m: f64,
+    /// Change of bleaching (0 healthy, 1 white).
+    pub bleach_change: f64,
+}
+
+impl StructureChange {
+    fn between(before: Option<&ObjectState>, after: Option<&ObjectState>) -> Option<Self> {
+        let either = after.or(before)?;
+        let reach_m = before.map_or(0.0, ObjectState::reach_m).max(after.map_or(0.0, ObjectState::reach_m));
+        let mut change = Self {
+            id: either.id,
+            kind: either.kind,
+            change: ChangeKind::Unchanged,
+            centre_before_m: before.map(|o| o.centre_m),
+            centre_after_m: after.map(|o| o.centre_m),
+            reach_m,
+            moved_m: 0.0,
+            turned_deg: 0.0,
+            growth: 0.0,
+            height_change_m: 0.0,
+            bleach_change: 0.0,
+        };
+        let (Some(a), Some(b)) = (before, after) else {
+            change.change = if after.is_some() { ChangeKind::New } else { ChangeKind::Removed };
+            return Some(change);
+        };
+        change.moved_m = (b.centre_m[0] - a.centre_m[0]).hypot(b.centre_m[1] - a.centre_m[1]);
+        change.turned_deg = (b.angle_rad - a.angle_rad).to_degrees();
+        change.growth = b.growth / a.growth - 1.0;
+        change.height_change_m = b.height_m * b.growth - a.height_m * a.growth;
+        change.bleach_change = b.bleach - a.bleach;
+        change.change = if change.moved_m > 0.0 || change.turned_deg != 0.0 {
+            ChangeKind::Moved
+        } else if change.growth != 0.0 {
+            ChangeKind::Grown
+        } else if change.bleach_change != 0.0 {
+            ChangeKind::Bleached
+        } else {
+            ChangeKind::Unchanged
+        };
+        Some(change)
+    }
+}
 
 /// A cross-session image pair that truly overlaps.
 #[derive(Clone, Debug, PartialEq, Serialize)]
@@ -73,6 +163,24 @@ fn depth_agrees(expected: f64, found: f32, relative: f64, absolute: f64) -> bool
 }
 
 impl Survey {
+    /// Every structure of visits `a` and `b` (either order) and what became of it
+    /// from `a` to `b`, sorted by id.
+    pub fn changes(&self, a: usize, b: usize) -> Result<Vec<StructureChange>, SynthError> {
+        let (before, after) = (self.objects(a)?, self.objects(b)?);
+        let find = |objects: &[ObjectState], id: u32| objects.binary_search_by_key(&id, |o| o.id).ok();
+        let mut ids: Vec<u32> = before.iter().chain(after).map(|o| o.id).collect();
+        ids.sort_unstable();
+        ids.dedup();
+        Ok(ids
+            .into_iter()
+            .filter_map(|id| {
+                let was = find(before, id).and_then(|k| before.get(k));
+                let is = find(after, id).and_then(|k| after.get(k));
+                StructureChange::between(was, is)
+            })
+            .collect())
+    }
+
     fn prepare_all(&self) -> Result<(), SynthError> {
         for s in 0..self.sessions().len() {
             self.prepare(s)?;

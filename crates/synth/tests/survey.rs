@@ -4,7 +4,9 @@
 use std::sync::OnceLock;
 
 use nalgebra::Point2;
-use revisit_synth::{plan, ChangeGrade, EvaluationOptions, Survey, SynthError, SynthOptions, NO_DEPTH};
+use revisit_synth::{
+    plan, ChangeGrade, ChangeKind, EvaluationOptions, Growth, ObjectKind, Survey, SynthError, SynthOptions, NO_DEPTH,
+};
 
 fn small(change: ChangeGrade, sessions: usize, seed: u64) -> SynthOptions {
     SynthOptions { sessions, images_per_session: 6, seed, change, width: 160, height: 120, ..Default::default() }
@@ -122,6 +124,53 @@ fn storm_moves_or_removes_a_large_share_of_corals() {
         corals.iter().filter(|o| after.iter().find(|p| p.id == o.id).is_none_or(|p| p.centre_m != o.centre_m)).count();
     let share = moved_or_gone as f64 / corals.len() as f64;
     assert!((0.3..=0.55).contains(&share), "moved or removed {share}");
+}
+
+#[test]
+fn growth_grows_every_living_coral_and_changes_nothing_else() {
+    let plain = plan(&small(ChangeGrade::Strong, 3, 5)).unwrap();
+    let grown = plan(&SynthOptions { growth: Some(Growth::YEARLY), ..small(ChangeGrade::Strong, 3, 5) }).unwrap();
+    for s in 1..3 {
+        let (a, b) = (plain.objects(s).unwrap(), grown.objects(s).unwrap());
+        assert_eq!(a.len(), b.len(), "the same structures survive in visit {s}");
+        for (x, y) in a.iter().zip(b) {
+            assert_eq!((x.id, x.centre_m, x.angle_rad, x.bleach), (y.id, y.centre_m, y.angle_rad, y.bleach));
+        }
+    }
+    // Visit 1 to 2: each surviving coral grew by 0.5-1.5 times its type's yearly fraction.
+    let changes = grown.changes(0, 1).unwrap();
+    let mut grown_corals = 0;
+    for c in changes.iter().filter(|c| c.kind.is_coral() && c.centre_before_m.is_some() && c.centre_after_m.is_some()) {
+        let f = Growth::YEARLY.fraction(c.kind);
+        assert!(c.growth >= 0.5 * f - 1e-12 && c.growth <= 1.5 * f + 1e-12, "{c:?}");
+        assert!(c.height_change_m > 0.0);
+        assert!(matches!(c.change, ChangeKind::Grown | ChangeKind::Moved), "{c:?}");
+        grown_corals += 1;
+    }
+    assert!(grown_corals > 10, "{grown_corals} corals grew");
+    let rocks = changes.iter().filter(|c| c.kind == ObjectKind::Rock && c.change == ChangeKind::Grown).count();
+    assert_eq!(rocks, 0, "rocks do not grow");
+    let removed = changes.iter().filter(|c| c.change == ChangeKind::Removed).count();
+    let plain_removed = plain.changes(0, 1).unwrap().iter().filter(|c| c.change == ChangeKind::Removed).count();
+    assert_eq!(removed, plain_removed);
+    // Growth compounds over visits, and a visit compared with itself has no change.
+    let over_two = grown.changes(0, 2).unwrap();
+    let one = changes.iter().find(|c| c.change == ChangeKind::Grown).unwrap();
+    let later = over_two.iter().find(|c| c.id == one.id).unwrap();
+    assert!(later.change != ChangeKind::Grown || later.growth > one.growth);
+    assert!(grown.changes(1, 1).unwrap().iter().all(|c| c.change == ChangeKind::Unchanged));
+}
+
+#[test]
+fn growth_is_read_as_a_preset_a_fraction_or_per_type() {
+    assert_eq!("yearly".parse::<Growth>().unwrap(), Growth::YEARLY);
+    assert_eq!("none".parse::<Growth>().unwrap(), Growth::NONE);
+    assert_eq!("0.1".parse::<Growth>().unwrap(), Growth { head: 0.1, table: 0.1, branching: 0.1 });
+    assert_eq!("branching=0.3".parse::<Growth>().unwrap(), Growth { branching: 0.3, ..Growth::YEARLY });
+    for bad in ["fast", "head=x", "trunk=0.1", "1.5", "-0.1"] {
+        let message = bad.parse::<Growth>().unwrap_err().to_string();
+        assert!(message.contains(bad), "{message}");
+    }
 }
 
 #[test]

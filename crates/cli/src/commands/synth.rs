@@ -5,7 +5,8 @@
 //! - `sessions/<name>/<name>_NNNN.png`: the images, one folder per session;
 //! - `truth/`: the COLMAP text model of the true cameras, `poses.csv`,
 //!   `intrinsics.json`, `survey.json`, `overlaps.csv`,
-//!   `evaluation_points_<A>-<B>.csv` per session pair, and `README.txt`;
+//!   `evaluation_points_<A>-<B>.csv` and `changes_<A>-<B>.csv` per session
+//!   pair, and `README.txt`;
 //! - `nav/<name>.csv`: each image's navigation (position and its standard
 //!   deviation, as a vehicle's INS with a position fix reports it).
 
@@ -18,7 +19,9 @@ use serde::Serialize;
 use tracing::info;
 
 use revisit_core::Rigid3;
-use revisit_synth::{ChangeGrade, EvaluationOptions, EvaluationPair, Overlap, Survey, SynthOptions};
+use revisit_synth::{
+    ChangeGrade, EvaluationOptions, EvaluationPair, Growth, Overlap, StructureChange, Survey, SynthOptions,
+};
 
 /// Cross-session pairs with a smaller overlap are not listed in overlaps.csv.
 const MIN_LISTED_OVERLAP: f64 = 0.1;
@@ -40,6 +43,12 @@ pub struct Args {
     /// Change between visits: none, mild, strong or storm.
     #[arg(long, default_value = "mild", value_parser = parse_change)]
     change: ChangeGrade,
+    /// Growth of every living coral per visit, replacing the change grade's own: `yearly` (a
+    /// year at typical Indo-Pacific rates: heads 4%, tables 12%, branching corals 25% of their
+    /// size), `none`, one fraction for all types (0.1), or per type head=F,table=F,branching=F.
+    /// Without it: none at none and strong, 20% of corals by 3-8% at mild, 10% by 2-10% at storm.
+    #[arg(long, value_parser = parse_growth)]
+    growth: Option<Growth>,
     /// Image size WxH in pixels (at least 64x48).
     #[arg(long, default_value = "640x480", value_parser = parse_size)]
     size: (u32, u32),
@@ -63,6 +72,10 @@ pub struct Args {
 
 fn parse_change(text: &str) -> Result<ChangeGrade, String> {
     text.parse::<ChangeGrade>().map_err(|e| e.to_string())
+}
+
+fn parse_growth(text: &str) -> Result<Growth, String> {
+    text.parse::<Growth>().map_err(|e| e.to_string())
 }
 
 fn parse_size(text: &str) -> Result<(u32, u32), String> {
@@ -91,6 +104,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         width: args.size.0,
         height: args.size.1,
         frames_per_step: usize::from(args.frames_per_step),
+        growth: args.growth,
     };
     let survey = revisit_synth::plan(&options).context("planning the survey")?;
     info!(
@@ -274,6 +288,8 @@ fn write_truth(survey: &Survey, dir: &Path, eval_pairs: usize) -> anyhow::Result
             write_file(&path, &evaluation_csv(&pairs)?)?;
             let points: usize = pairs.iter().map(|p| p.uv_clicked.len()).sum();
             info!("{}: {} pairs, {} points", path.display(), pairs.len(), points);
+            let changes = survey.changes(a, b).context("listing the changes")?;
+            write_file(&dir.join(format!("changes_{}-{}.csv", sa.name, sb.name)), &changes_csv(&changes)?)?;
         }
     }
     write_file(&dir.join("README.txt"), README)?;
@@ -329,6 +345,45 @@ fn poses_csv<'a>(poses: impl IntoIterator<Item = (&'a str, &'a str, &'a Rigid3)>
 fn overlaps_csv(overlaps: &[Overlap]) -> anyhow::Result<String> {
     let rows = overlaps.iter().map(|o| [o.img0.clone(), o.img1.clone(), format!("{:.4}", o.overlap)]);
     csv_text(["img0", "img1", "overlap"], rows)
+}
+
+/// Every structure of two visits and what became of it, for scoring change maps.
+fn changes_csv(changes: &[StructureChange]) -> anyhow::Result<String> {
+    let xy = |c: Option<[f64; 2]>| c.map_or((String::new(), String::new()), |c| (num(c[0]), num(c[1])));
+    let rows = changes.iter().map(|c| {
+        let ((x0, y0), (x1, y1)) = (xy(c.centre_before_m), xy(c.centre_after_m));
+        [
+            c.id.to_string(),
+            c.kind.name().to_owned(),
+            c.change.name().to_owned(),
+            x0,
+            y0,
+            x1,
+            y1,
+            num(c.reach_m),
+            num(c.moved_m),
+            num(c.turned_deg),
+            num(c.growth),
+            num(c.height_change_m),
+            num(c.bleach_change),
+        ]
+    });
+    let header = [
+        "id",
+        "kind",
+        "change",
+        "x0",
+        "y0",
+        "x1",
+        "y1",
+        "reach_m",
+        "moved_m",
+        "turned_deg",
+        "growth",
+        "height_change_m",
+        "bleach_change",
+    ];
+    csv_text(header, rows)
 }
 
 /// The published evaluation format: `img0,img1,uv_clicked,uv_groundtruth`.
@@ -415,6 +470,15 @@ overlaps.csv
     that truly overlap: the fraction of img0's pixels whose seabed point is
     visible in img1 at the same depth (changed or occluded structures do not
     count). Pairs above 0.1 are listed; estimated on an 80x60 grid.
+changes_A-B.csv
+    Every structure (rock, pebble, coral_head, coral_table, branching_coral) of
+    sessions A and B and what became of it from A to B: change is removed,
+    new, moved, grown, bleached or unchanged (the first that applies: a moved
+    coral may also have grown); x0,y0 and x1,y1 its centre in A and in B
+    (empty when absent), reach_m its largest horizontal reach from the centre,
+    moved_m, turned_deg, growth (B's size over A's, minus 1; radial and
+    vertical), height_change_m (of its top above its base) and bleach_change
+    (0 healthy, 1 white). Evaluation points never fall on changed structures.
 evaluation_points_A-B.csv
     The published evaluation format for sessions A and B:
     img0,img1,uv_clicked,uv_groundtruth, each of the two last cells a JSON
