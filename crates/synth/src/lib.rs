@@ -37,6 +37,8 @@ pub use truth::{ChangeKind, EvaluationOptions, EvaluationPair, Overlap, Structur
 /// Smallest image the renderer accepts (pixels).
 pub const MIN_WIDTH: u32 = 64;
 pub const MIN_HEIGHT: u32 = 48;
+/// Largest coral cover a survey may ask for (share of the plan area).
+pub const MAX_COVER: f64 = 0.8;
 /// Largest image side the renderer accepts (pixels).
 pub const MAX_SIDE: u32 = 8192;
 
@@ -110,6 +112,10 @@ pub struct SynthOptions {
     /// [`ChangeGrade`]). Draws of its own: the same seed with and without growth differs in
     /// growth only.
     pub growth: Option<Growth>,
+    /// Share of the site's plan area inside coral outlines in the first visit, 0 to
+    /// [`MAX_COVER`]; `None` keeps the reef's own (about 0.2). Corals are added in the
+    /// reef's proportions of heads, tables and branching corals, or the last left out.
+    pub cover: Option<f64>,
 }
 
 impl Default for SynthOptions {
@@ -123,6 +129,7 @@ impl Default for SynthOptions {
             height: 480,
             frames_per_step: 1,
             growth: None,
+            cover: None,
         }
     }
 }
@@ -138,6 +145,11 @@ impl SynthOptions {
         }
         if self.images_per_session < 2 {
             return Err(SynthError::TooFewImages(self.images_per_session));
+        }
+        if let Some(cover) = self.cover {
+            if !(0.0..=MAX_COVER).contains(&cover) {
+                return Err(SynthError::BadCover(cover));
+            }
         }
         if let Some(growth) = &self.growth {
             growth.check()?;
@@ -242,6 +254,8 @@ pub enum SynthError {
         "image size {width}x{height} is out of range: at least {MIN_WIDTH}x{MIN_HEIGHT}, at most {MAX_SIDE} per side"
     )]
     BadImageSize { width: u32, height: u32 },
+    #[error("coral cover {0} is outside 0-{MAX_COVER}")]
+    BadCover(f64),
     #[error("bad growth {0}; expected yearly, none, a fraction per visit, or head=F,table=F,branching=F")]
     BadGrowth(String),
     #[error("unknown change grade {0:?}: expected none, mild, strong or storm")]

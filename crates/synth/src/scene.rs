@@ -500,18 +500,16 @@ fn settle(state: &mut ObjectState, site: &Site) {
     state.base_m = f64::from(ground) - 0.015 - 0.08 * state.height_m;
 }
 
-/// The structures of the first session.
-pub(crate) fn initial_objects(site: &Site, seed: u64) -> Vec<ObjectState> {
+/// The structures of the first session. With `cover` (a share of the plan
+/// area), corals are added (drawn from a stream of their own, in the plan's
+/// proportions) or the plan's last corals left out until the share of the
+/// site inside coral outlines reaches it.
+pub(crate) fn initial_objects(site: &Site, seed: u64, cover: Option<f64>) -> Vec<ObjectState> {
     let mut rng = SplitMix64::stream(seed, 0x0B1E);
     let spread = site.half_m - 0.2;
     let area = (2.0 * spread) * (2.0 * spread);
-    let plan = [
-        (ObjectKind::CoralTable, 0.10),
-        (ObjectKind::CoralHead, 0.5),
-        (ObjectKind::Rock, 0.3),
-        (ObjectKind::BranchingCoral, 0.35),
-        (ObjectKind::Pebble, 6.0),
-    ];
+    let corals = [(ObjectKind::CoralTable, 0.10), (ObjectKind::CoralHead, 0.5), (ObjectKind::BranchingCoral, 0.35)];
+    let plan = [corals[0], corals[1], (ObjectKind::Rock, 0.3), corals[2], (ObjectKind::Pebble, 6.0)];
     let mut objects = Vec::new();
     for (kind, per_m2) in plan {
         let count = (per_m2 * area).round() as usize;
@@ -520,7 +518,96 @@ pub(crate) fn initial_objects(site: &Site, seed: u64) -> Vec<ObjectState> {
             objects.push(new_object(&mut rng, site, id, kind, spread));
         }
     }
+    let Some(target) = cover else { return objects };
+    let mut raster = CoverRaster::new(site);
+    objects.iter().filter(|o| o.kind.is_coral()).for_each(|o| raster.add(o));
+    if raster.share() > target {
+        // Keep corals in an order that ignores their kind (their seeds') while
+        // they fit, then number the structures again.
+        let mut raster = CoverRaster::new(site);
+        let mut corals: Vec<&ObjectState> = objects.iter().filter(|o| o.kind.is_coral()).collect();
+        corals.sort_by_key(|o| (o.seed, o.id));
+        let mut kept = std::collections::HashSet::new();
+        for o in corals {
+            if raster.share() + raster.adds(o) <= target {
+                raster.add(o);
+                kept.insert(o.id);
+            }
+        }
+        objects.retain(|o| !o.kind.is_coral() || kept.contains(&o.id));
+        for (id, o) in (1u32..).zip(objects.iter_mut()) {
+            o.id = id;
+        }
+        return objects;
+    }
+    let mut rng = SplitMix64::stream(seed, 0xC0FE_0000);
+    let weights: f64 = corals.iter().map(|c| c.1).sum();
+    let mut next_id = objects.len() as u32 + 1;
+    while raster.share() < target && next_id < u32::from(u16::MAX) {
+        let mut pick = rng.range(0.0, weights);
+        let kind = corals.iter().find(|c| {
+            pick -= c.1;
+            pick < 0.0
+        });
+        let o = new_object(&mut rng, site, next_id, kind.map_or(ObjectKind::CoralHead, |c| c.0), spread);
+        raster.add(&o);
+        objects.push(o);
+        next_id += 1;
+    }
     objects
+}
+
+/// The site's plan area on a coarse grid, marked where a coral's nominal
+/// outline (its disc of `radius_m` times its growth) covers it.
+struct CoverRaster {
+    half_m: f64,
+    n: usize,
+    covered: Vec<bool>,
+    count: usize,
+}
+
+impl CoverRaster {
+    const CELL_M: f64 = 0.02;
+
+    fn new(site: &Site) -> Self {
+        let n = (2.0 * site.half_m / Self::CELL_M).ceil() as usize;
+        Self { half_m: site.half_m, n, covered: vec![false; n * n], count: 0 }
+    }
+
+    fn share(&self) -> f64 {
+        self.count as f64 / (self.n * self.n).max(1) as f64
+    }
+
+    /// The cells of `o`'s disc.
+    fn cells(&self, o: &ObjectState) -> impl Iterator<Item = usize> + '_ {
+        let r = o.radius_m * o.growth;
+        let cell = |v: f64| ((v + self.half_m) / Self::CELL_M).floor().clamp(0.0, (self.n - 1) as f64) as usize;
+        let [cx, cy] = o.centre_m;
+        let (i0, i1, j0, j1) = (cell(cx - r), cell(cx + r), cell(cy - r), cell(cy + r));
+        (j0..=j1).flat_map(move |j| (i0..=i1).map(move |i| (i, j))).filter_map(move |(i, j)| {
+            let x = -self.half_m + (i as f64 + 0.5) * Self::CELL_M;
+            let y = -self.half_m + (j as f64 + 0.5) * Self::CELL_M;
+            ((x - cx).hypot(y - cy) <= r).then_some(j * self.n + i)
+        })
+    }
+
+    /// The share `o` would add.
+    fn adds(&self, o: &ObjectState) -> f64 {
+        let new = self.cells(o).filter(|&k| !self.covered.get(k).copied().unwrap_or(true)).count();
+        new as f64 / (self.n * self.n).max(1) as f64
+    }
+
+    fn add(&mut self, o: &ObjectState) {
+        let cells: Vec<usize> = self.cells(o).collect();
+        for k in cells {
+            if let Some(c) = self.covered.get_mut(k) {
+                if !*c {
+                    *c = true;
+                    self.count += 1;
+                }
+            }
+        }
+    }
 }
 
 /// Rates of change from one session to the next.

@@ -313,7 +313,7 @@ pub fn plan(options: &SynthOptions) -> Result<Survey, SynthError> {
         });
     }
 
-    let mut objects = vec![scene::initial_objects(&site, options.seed)];
+    let mut objects = vec![scene::initial_objects(&site, options.seed, options.cover)];
     for s in 1..options.sessions {
         let previous = objects.last().map(Vec::as_slice).unwrap_or(&[]);
         let next = scene::evolve(&site, previous, options.change, options.growth.as_ref(), options.seed, s);
@@ -503,6 +503,16 @@ impl Survey {
     /// main thread makes later parallel rendering fast.
     pub fn prepare(&self, session: usize) -> Result<(), SynthError> {
         self.scene(session).map(|_| ())
+    }
+
+    /// The share of the site's plan area under coral (living or bleached) in a
+    /// session, counted on the object-id texels (what is seen from above).
+    pub fn coral_cover(&self, session: usize) -> Result<f64, SynthError> {
+        let scene = self.scene(session)?;
+        let corals: std::collections::HashSet<u32> =
+            self.objects(session)?.iter().filter(|o| o.kind.is_coral()).map(|o| o.id).collect();
+        let covered = scene.ids.iter().filter(|&&id| corals.contains(&u32::from(id))).count();
+        Ok(covered as f64 / scene.ids.len().max(1) as f64)
     }
 
     pub(crate) fn scene(&self, session: usize) -> Result<&SessionScene, SynthError> {

@@ -162,6 +162,25 @@ fn growth_grows_every_living_coral_and_changes_nothing_else() {
 }
 
 #[test]
+fn coral_cover_follows_the_option_and_the_plan_keeps_its_kinds() {
+    let cover = |c: Option<f64>| {
+        let survey = plan(&SynthOptions { cover: c, ..small(ChangeGrade::None, 1, 4) }).unwrap();
+        let kinds = |kind: ObjectKind| survey.objects(0).unwrap().iter().filter(|o| o.kind == kind).count();
+        let counts = [ObjectKind::CoralHead, ObjectKind::CoralTable, ObjectKind::BranchingCoral].map(kinds);
+        (survey.coral_cover(0).unwrap(), counts)
+    };
+    let (default, _) = cover(None);
+    assert!((0.12..0.3).contains(&default), "the reef's own cover {default}");
+    for target in [0.08, 0.45] {
+        let (seen, counts) = cover(Some(target));
+        assert!((seen - target).abs() < 0.05, "asked {target}, seen {seen}");
+        assert!(counts.iter().all(|&n| n > 0), "{counts:?} heads, tables, branching at {target}");
+    }
+    let message = plan(&SynthOptions { cover: Some(0.95), ..Default::default() }).unwrap_err().to_string();
+    assert!(message.contains("cover 0.95"), "{message}");
+}
+
+#[test]
 fn growth_is_read_as_a_preset_a_fraction_or_per_type() {
     assert_eq!("yearly".parse::<Growth>().unwrap(), Growth::YEARLY);
     assert_eq!("none".parse::<Growth>().unwrap(), Growth::NONE);

@@ -49,6 +49,11 @@ pub struct Args {
     /// Without it: none at none and strong, 20% of corals by 3-8% at mild, 10% by 2-10% at storm.
     #[arg(long, value_parser = parse_growth)]
     growth: Option<Growth>,
+    /// Coral cover: the share of the site's plan area inside coral outlines in the first visit
+    /// (0-0.8; without it about 0.2). Real reef slopes range 0.1-0.5 (e.g. the Great Barrier
+    /// Reef's long-term average near 0.3, AIMS LTMP). survey.json reports the cover seen.
+    #[arg(long, value_parser = parse_cover)]
+    cover: Option<f64>,
     /// Image size WxH in pixels (at least 64x48).
     #[arg(long, default_value = "640x480", value_parser = parse_size)]
     size: (u32, u32),
@@ -78,6 +83,14 @@ fn parse_growth(text: &str) -> Result<Growth, String> {
     text.parse::<Growth>().map_err(|e| e.to_string())
 }
 
+fn parse_cover(text: &str) -> Result<f64, String> {
+    let cover: f64 = text.parse().map_err(|_| format!("expected a share such as 0.3, got {text:?}"))?;
+    if !(0.0..=revisit_synth::MAX_COVER).contains(&cover) {
+        return Err(format!("{cover} is outside 0-{}", revisit_synth::MAX_COVER));
+    }
+    Ok(cover)
+}
+
 fn parse_size(text: &str) -> Result<(u32, u32), String> {
     let (w, h) = text.split_once(['x', 'X']).ok_or_else(|| format!("expected WxH such as 640x480, got {text:?}"))?;
     let parse = |s: &str| s.trim().parse::<u32>().map_err(|_| format!("expected WxH such as 640x480, got {text:?}"));
@@ -105,6 +118,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         height: args.size.1,
         frames_per_step: usize::from(args.frames_per_step),
         growth: args.growth,
+        cover: args.cover,
     };
     let survey = revisit_synth::plan(&options).context("planning the survey")?;
     info!(
@@ -403,6 +417,8 @@ struct SessionSummary<'a> {
     images: usize,
     appearance: &'a revisit_synth::Appearance,
     structures: usize,
+    /// Share of the site's plan area under coral.
+    coral_cover: f64,
     /// Structures identical to the previous session (growth, bleaching and
     /// moves excluded).
     unchanged_from_previous: usize,
@@ -436,6 +452,7 @@ fn summary(survey: &Survey) -> Summary<'_> {
                 images: plan.images.len(),
                 appearance: &plan.appearance,
                 structures: objects.len(),
+                coral_cover: survey.coral_cover(s).unwrap_or(0.0),
                 unchanged_from_previous: unchanged,
             }
         })
@@ -464,7 +481,8 @@ intrinsics.json
 survey.json
     Options, site size, and per session the altitude, heading (direction of
     the survey lines and of the image's up, degrees from east), track offset,
-    water and light parameters, and how many structures stayed unchanged.
+    water and light parameters, the share of the site under coral
+    (coral_cover, seen from above), and how many structures stayed unchanged.
 overlaps.csv
     img0,img1,overlap for cross-session pairs (img0 from the earlier session)
     that truly overlap: the fraction of img0's pixels whose seabed point is
