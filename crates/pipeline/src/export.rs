@@ -77,13 +77,19 @@ pub fn session_reports(
         .collect()
 }
 
+/// Whether a model links a visit of `images` images, `registered` of them in
+/// it: at least half of them are.
+pub fn is_linked(registered: usize, images: usize) -> bool {
+    2 * registered >= images
+}
+
 /// Sessions (of several) with fewer than half their images in the chosen
 /// model: they could not be linked to the others.
 pub fn unlinked_sessions(sessions: &BTreeMap<String, SessionReport>) -> Vec<String> {
     if sessions.len() < 2 {
         return Vec::new();
     }
-    sessions.iter().filter(|(_, s)| 2 * s.registered < s.images).map(|(name, _)| name.clone()).collect()
+    sessions.iter().filter(|(_, s)| !is_linked(s.registered, s.images)).map(|(name, _)| name.clone()).collect()
 }
 
 /// Pairs tried, and verified (geometric verification kept inliers), per kind.

@@ -17,6 +17,7 @@ use anyhow::{bail, Context, Result};
 use revisit_core::{session_of, NavigationFix, Reconstruction};
 use revisit_eval::{parse_truth_poses_csv, score_truth, ClickPair, TruthOptions};
 use revisit_matching::RollSearch;
+use revisit_pipeline::export::is_linked;
 use revisit_pipeline::ingest::{scan_session, SessionSpec};
 use revisit_pipeline::navigation::read_navigation_csv;
 use revisit_pipeline::options::ReconstructOptions;
@@ -164,7 +165,8 @@ struct MethodFigures {
     about: String,
     /// Why the method gave no scored model, if it did not.
     failure: Option<String>,
-    /// Visits whose images are in the scored model, of all visits.
+    /// Visits with at least half their images in the scored model (linked, as `reconstruct`
+    /// reports it), of all visits.
     sessions_merged: usize,
     sessions: usize,
     median_px: Option<f64>,
@@ -208,6 +210,10 @@ pub fn run(args: Args) -> Result<()> {
     let truth = args.dataset.join("truth");
     let sessions = super::session_names(&args.dataset)?;
     let clicks = super::truth_clicks(&truth)?;
+    let session_images: Vec<usize> = sessions
+        .iter()
+        .map(|s| scan_session(&SessionSpec { name: s.clone(), dir: sessions_dir.join(s) }).map(|images| images.len()))
+        .collect::<Result<_, _>>()?;
     let poses_path = truth.join("poses.csv");
     let poses = match poses_path.exists() {
         true => {
@@ -332,8 +338,14 @@ pub fn run(args: Args) -> Result<()> {
             std::fs::create_dir_all(&dir).with_context(|| format!("creating {}", dir.display()))?;
             revisit_colmap::write_binary(&model, &dir).with_context(|| format!("writing {}", dir.display()))?;
             let summary = super::score_clicks(&model, &clicks);
-            row.sessions_merged =
-                sessions.iter().filter(|s| model.images.values().any(|i| session_of(&i.name) == *s)).count();
+            row.sessions_merged = sessions
+                .iter()
+                .zip(&session_images)
+                .filter(|&(s, &images)| {
+                    let registered = model.images.values().filter(|i| session_of(&i.name) == s.as_str()).count();
+                    is_linked(registered, images)
+                })
+                .count();
             if row.sessions_merged < sessions.len() && failure.is_none() {
                 failure = Some(format!("{} of {} visits in one model", row.sessions_merged, sessions.len()));
             }
