@@ -114,7 +114,7 @@ pub struct SynthOptions {
     pub growth: Option<Growth>,
     /// Share of the site's plan area inside coral outlines in the first visit, 0 to
     /// [`MAX_COVER`]; `None` keeps the reef's own (about 0.2). Corals are added in the
-    /// reef's proportions of heads, tables and branching corals, or the last left out.
+    /// reef's proportions of heads, tables and branching corals, or some left out whatever their kind.
     pub cover: Option<f64>,
 }
 

@@ -502,8 +502,8 @@ fn settle(state: &mut ObjectState, site: &Site) {
 
 /// The structures of the first session. With `cover` (a share of the plan
 /// area), corals are added (drawn from a stream of their own, in the plan's
-/// proportions) or the plan's last corals left out until the share of the
-/// site inside coral outlines reaches it.
+/// proportions) until the share of the site inside coral outlines reaches it,
+/// or, above it, left out in an order blind to their kind.
 pub(crate) fn initial_objects(site: &Site, seed: u64, cover: Option<f64>) -> Vec<ObjectState> {
     let mut rng = SplitMix64::stream(seed, 0x0B1E);
     let spread = site.half_m - 0.2;
