@@ -486,16 +486,19 @@ impl Survey {
             .ok_or(SynthError::NoSuchSession { index: session, count: self.sessions.len() })
     }
 
+    /// Structure `id` as session `s` has it, if there.
+    pub(crate) fn object(&self, s: usize, id: u32) -> Option<&ObjectState> {
+        let objects = self.objects.get(s)?;
+        objects.binary_search_by_key(&id, |o| o.id).ok().and_then(|k| objects.get(k))
+    }
+
     /// Whether object `id` looks and lies exactly the same in sessions `a` and
     /// `b` (the seabed always does; an object missing from either does not).
     pub fn object_unchanged(&self, id: u32, a: usize, b: usize) -> bool {
         if id == scene::SEABED_ID {
             return true;
         }
-        let find = |s: usize| {
-            self.objects.get(s).and_then(|objs| objs.binary_search_by_key(&id, |o| o.id).ok().and_then(|k| objs.get(k)))
-        };
-        matches!((find(a), find(b)), (Some(x), Some(y)) if x == y)
+        matches!((self.object(a, id), self.object(b, id)), (Some(x), Some(y)) if x == y)
     }
 
     /// Builds the textures of a session now (in parallel when called outside

@@ -167,18 +167,10 @@ impl Survey {
     /// from `a` to `b`, sorted by id.
     pub fn changes(&self, a: usize, b: usize) -> Result<Vec<StructureChange>, SynthError> {
         let (before, after) = (self.objects(a)?, self.objects(b)?);
-        let find = |objects: &[ObjectState], id: u32| objects.binary_search_by_key(&id, |o| o.id).ok();
         let mut ids: Vec<u32> = before.iter().chain(after).map(|o| o.id).collect();
         ids.sort_unstable();
         ids.dedup();
-        Ok(ids
-            .into_iter()
-            .filter_map(|id| {
-                let was = find(before, id).and_then(|k| before.get(k));
-                let is = find(after, id).and_then(|k| after.get(k));
-                StructureChange::between(was, is)
-            })
-            .collect())
+        Ok(ids.into_iter().filter_map(|id| StructureChange::between(self.object(a, id), self.object(b, id))).collect())
     }
 
     fn prepare_all(&self) -> Result<(), SynthError> {
