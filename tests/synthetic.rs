@@ -1,5 +1,6 @@
 //! The synthetic reef end to end: render three visits with no change, reconstruct
-//! them jointly, score the result against the exact truth.
+//! them jointly, score the result against the exact truth; two of them again
+//! with one shared, self-calibrated camera.
 
 mod common;
 
@@ -105,4 +106,16 @@ fn unchanged_reef_reconstructs_to_subpixel_cross_visit_error() {
     assert!(median_px < 1.0, "median cross-session reprojection error {median_px} px");
     let centre_rel = scores["truth"]["overall"]["centre_median_rel"].as_f64().unwrap();
     assert!(centre_rel < 0.01, "camera-centre error {centre_rel} of the scene size");
+
+    // Visits flown with one uncalibrated camera share it and refine it jointly: one camera for
+    // both, and still sub-pixel across them.
+    let two = ["s1", "s2"];
+    let shared = dir.path().join("shared-camera");
+    let report = common::reconstruct_uncalibrated(&reef, &two, &shared, &["--cross", "sift", "--shared-camera"]);
+    assert_eq!(common::fully_registered(&report), two, "{report:#}");
+    let camera_ids: Vec<&serde_json::Value> =
+        two.iter().map(|s| &report["sessions"][s]["cameras"]["640x480"]["camera_id"]).collect();
+    assert!(camera_ids.iter().all(|id| *id == camera_ids[0]), "{report:#}");
+    let shared_px = common::cross_error_px(&reef, &two, &shared).expect("clicks scored");
+    assert!(shared_px < 1.0, "shared camera: median cross-visit error {shared_px} px");
 }
