@@ -61,8 +61,7 @@ fn strong_change_links_with_place_recognition_and_roll_search_not_with_sift() {
     // extended. Its pairs are matched at the roll the verified pairs predict (the first few
     // searched).
     let before = report;
-    let all = three;
-    let report = reconstruct(&reef, &all, &vpr, &["--roll-search", "predict"]);
+    let report = reconstruct(&reef, &three, &vpr, &["--roll-search", "predict"]);
     assert_eq!(report["features"]["done"], IMAGES, "{report:#}");
     assert_eq!(report["features"]["reused"], 2 * IMAGES);
     // Learned features: roll 0 for the first visit, four rolls for later ones.
@@ -79,7 +78,7 @@ fn strong_change_links_with_place_recognition_and_roll_search_not_with_sift() {
     // other than its visits' is left out (one of this visit's, which the full search brings in).
     let third = &report["sessions"]["s3"];
     assert!(third["registered"].as_u64().unwrap() + 1 >= IMAGES, "{report:#}");
-    let error = cross_error_px(&reef, &all, &vpr).expect("clicks scored");
+    let error = cross_error_px(&reef, &three, &vpr).expect("clicks scored");
     assert!(error < 2.0, "median cross-session reprojection error {error} px after the third visit");
 
     // Most of the third visit's pairs are matched at the roll their visits' other pairs predict,
@@ -106,7 +105,7 @@ fn strong_change_links_with_place_recognition_and_roll_search_not_with_sift() {
 
     // The pairs the consistency check finds at odds with their roll or with their visits' other
     // pairs are far-off ones; asked to, it maps without them (nothing else is redone).
-    let report = reconstruct(&reef, &all, &vpr, &["--set-aside-inconsistent"]);
+    let report = reconstruct(&reef, &three, &vpr, &["--set-aside-inconsistent"]);
     let consistency = &report["cross"]["consistency"];
     let count = |key: &str| consistency[key].as_u64().unwrap();
     assert_eq!(count("set_aside"), count("roll_disagrees") + count("off_consensus"), "{consistency}");
