@@ -30,6 +30,9 @@ enum Command {
     Synth(commands::synth::Args),
     /// Score a reconstruction with the published cross-visit reprojection protocol.
     Eval(commands::eval::Args),
+    /// Map where the reef changed between two visits of one joint model (M3C2-style distances,
+    /// each with its level of detection): a PLY, a top-down PNG and a CSV of changed regions.
+    Change(commands::change::Args),
     /// Match two images (learned or SIFT, with roll search) and show the verified matches.
     Match(commands::match_pair::Args),
     /// ROS 2 bags (mcap or sqlite3): info, export an image topic, pack image folders.
@@ -57,6 +60,7 @@ fn main() -> std::process::ExitCode {
         Command::Reconstruct(args) => commands::reconstruct::run(*args),
         Command::Synth(args) => commands::synth::run(args),
         Command::Eval(args) => commands::eval::run(args),
+        Command::Change(args) => commands::change::run(args),
         Command::Match(args) => commands::match_pair::run(args),
         Command::Bag(command) => commands::bag::run(command),
         Command::Launch(args) => commands::launch::run(args),

@@ -16,6 +16,7 @@
 //! models and writes reports and images).
 
 mod clicks;
+pub mod draw;
 mod pairs;
 mod plot;
 mod score;

@@ -3,6 +3,8 @@
 
 use image::{Rgb, RgbImage};
 
+use crate::draw::{draw_text, fill_rect, hline, nice_ceil, text_width, vline};
+
 /// Options of [`histogram`].
 #[derive(Clone, Debug, PartialEq)]
 pub struct HistogramOptions {
@@ -33,7 +35,6 @@ const LEFT: u32 = 70;
 const RIGHT: u32 = 30;
 const TOP: u32 = 50;
 const BOTTOM: u32 = 60;
-const FONT_SCALE: u32 = 2;
 
 /// A histogram of reprojection errors: x = error in pixels (bins), y = number
 /// of clicks, the median marked by a red line. `title` is drawn upper-case.
@@ -116,15 +117,6 @@ pub fn histogram(errors_px: &[f64], title: &str, options: &HistogramOptions) -> 
     img
 }
 
-/// The smallest of 1, 2, 2.5, 5 times a power of ten that is >= `value`.
-fn nice_ceil(value: f64) -> f64 {
-    if !(value.is_finite() && value > 0.0) {
-        return 1.0;
-    }
-    let power = 10f64.powf(value.log10().floor());
-    [1.0, 2.0, 2.5, 5.0, 10.0].iter().map(|m| m * power).find(|v| *v >= value * (1.0 - 1e-12)).unwrap_or(10.0 * power)
-}
-
 fn format_tick(value: f64) -> String {
     let text = format!("{value:.2}");
     text.trim_end_matches('0').trim_end_matches('.').to_owned()
@@ -135,106 +127,6 @@ fn format_value(value: f64) -> String {
         format!("{value:.0}")
     } else {
         format!("{value:.2}")
-    }
-}
-
-fn put(img: &mut RgbImage, x: u32, y: u32, color: Rgb<u8>) {
-    if x < img.width() && y < img.height() {
-        img.put_pixel(x, y, color);
-    }
-}
-
-fn hline(img: &mut RgbImage, x_from: u32, x_to: u32, y: u32, color: Rgb<u8>) {
-    for x in x_from..=x_to {
-        put(img, x, y, color);
-    }
-}
-
-fn vline(img: &mut RgbImage, x: u32, y_from: u32, y_to: u32, color: Rgb<u8>) {
-    for y in y_from..=y_to {
-        put(img, x, y, color);
-    }
-}
-
-fn fill_rect(img: &mut RgbImage, left: u32, top: u32, right: u32, bottom: u32, color: Rgb<u8>) {
-    for y in top..=bottom {
-        hline(img, left, right, y, color);
-    }
-}
-
-fn text_width(text: &str) -> u32 {
-    text.chars().count() as u32 * 4 * FONT_SCALE
-}
-
-fn draw_text(img: &mut RgbImage, x: u32, y: u32, text: &str, color: Rgb<u8>) {
-    for (k, c) in text.chars().enumerate() {
-        let rows = glyph(c);
-        let left = x + k as u32 * 4 * FONT_SCALE;
-        for (row, bits) in rows.iter().enumerate() {
-            for col in 0..3u32 {
-                if bits & (0b100 >> col) != 0 {
-                    let (px, py) = (left + col * FONT_SCALE, y + row as u32 * FONT_SCALE);
-                    fill_rect(img, px, py, px + FONT_SCALE - 1, py + FONT_SCALE - 1, color);
-                }
-            }
-        }
-    }
-}
-
-/// A 3x5 bitmap glyph: five rows, three bits each (left bit first).
-fn glyph(c: char) -> [u8; 5] {
-    match c.to_ascii_uppercase() {
-        '0' => [0b111, 0b101, 0b101, 0b101, 0b111],
-        '1' => [0b010, 0b110, 0b010, 0b010, 0b111],
-        '2' => [0b111, 0b001, 0b111, 0b100, 0b111],
-        '3' => [0b111, 0b001, 0b111, 0b001, 0b111],
-        '4' => [0b101, 0b101, 0b111, 0b001, 0b001],
-        '5' => [0b111, 0b100, 0b111, 0b001, 0b111],
-        '6' => [0b111, 0b100, 0b111, 0b101, 0b111],
-        '7' => [0b111, 0b001, 0b001, 0b010, 0b010],
-        '8' => [0b111, 0b101, 0b111, 0b101, 0b111],
-        '9' => [0b111, 0b101, 0b111, 0b001, 0b111],
-        'A' => [0b010, 0b101, 0b111, 0b101, 0b101],
-        'B' => [0b110, 0b101, 0b110, 0b101, 0b110],
-        'C' => [0b011, 0b100, 0b100, 0b100, 0b011],
-        'D' => [0b110, 0b101, 0b101, 0b101, 0b110],
-        'E' => [0b111, 0b100, 0b110, 0b100, 0b111],
-        'F' => [0b111, 0b100, 0b110, 0b100, 0b100],
-        'G' => [0b011, 0b100, 0b101, 0b101, 0b011],
-        'H' => [0b101, 0b101, 0b111, 0b101, 0b101],
-        'I' => [0b111, 0b010, 0b010, 0b010, 0b111],
-        'J' => [0b001, 0b001, 0b001, 0b101, 0b010],
-        'K' => [0b101, 0b101, 0b110, 0b101, 0b101],
-        'L' => [0b100, 0b100, 0b100, 0b100, 0b111],
-        'M' => [0b101, 0b111, 0b111, 0b101, 0b101],
-        'N' => [0b110, 0b101, 0b101, 0b101, 0b101],
-        'O' => [0b010, 0b101, 0b101, 0b101, 0b010],
-        'P' => [0b110, 0b101, 0b110, 0b100, 0b100],
-        'Q' => [0b010, 0b101, 0b101, 0b110, 0b011],
-        'R' => [0b110, 0b101, 0b110, 0b101, 0b101],
-        'S' => [0b011, 0b100, 0b010, 0b001, 0b110],
-        'T' => [0b111, 0b010, 0b010, 0b010, 0b010],
-        'U' => [0b101, 0b101, 0b101, 0b101, 0b111],
-        'V' => [0b101, 0b101, 0b101, 0b101, 0b010],
-        'W' => [0b101, 0b101, 0b111, 0b111, 0b101],
-        'X' => [0b101, 0b101, 0b010, 0b101, 0b101],
-        'Y' => [0b101, 0b101, 0b010, 0b010, 0b010],
-        'Z' => [0b111, 0b001, 0b010, 0b100, 0b111],
-        '.' => [0b000, 0b000, 0b000, 0b000, 0b010],
-        ',' => [0b000, 0b000, 0b000, 0b010, 0b100],
-        '-' => [0b000, 0b000, 0b111, 0b000, 0b000],
-        '+' => [0b000, 0b010, 0b111, 0b010, 0b000],
-        ':' => [0b000, 0b010, 0b000, 0b010, 0b000],
-        '=' => [0b000, 0b111, 0b000, 0b111, 0b000],
-        '>' => [0b100, 0b010, 0b001, 0b010, 0b100],
-        '<' => [0b001, 0b010, 0b100, 0b010, 0b001],
-        '/' => [0b001, 0b001, 0b010, 0b100, 0b100],
-        '_' => [0b000, 0b000, 0b000, 0b000, 0b111],
-        '(' => [0b010, 0b100, 0b100, 0b100, 0b010],
-        ')' => [0b010, 0b001, 0b001, 0b001, 0b010],
-        '%' => [0b101, 0b001, 0b010, 0b100, 0b101],
-        ' ' => [0; 5],
-        _ => [0b111, 0b001, 0b010, 0b000, 0b010],
     }
 }
 

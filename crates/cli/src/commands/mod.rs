@@ -1,5 +1,6 @@
 pub mod bag;
 pub mod bench;
+pub mod change;
 pub mod doctor;
 pub mod eval;
 pub mod launch;

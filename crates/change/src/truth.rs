@@ -1,0 +1,250 @@
+//! A change map scored against the synthetic reef's truth (`truth/changes_A-B.csv`).
+
+use nalgebra::Point3;
+use revisit_core::Similarity;
+use serde::{Deserialize, Serialize};
+
+use crate::ChangeMap;
+
+/// How regions and truth structures are matched, as the scores state it.
+pub const MATCHING_RULE: &str = "a region explains a structure when its centre lies within the structure's reach plus \
+    one cell of where the structure was (removed, moved), is (new, moved) or stands (grown); a region is true when it \
+    explains a structure whose shape or place changed (removed, new, moved or grown; bleaching alone is not; \
+    pebbles, 1-4 cm tall, are below what a map of sparse points measures and explain nothing), false otherwise; the targets are the corals the truth moved or removed whose changed place has a measured cell \
+    within half its reach; a target is found when a region explains it";
+
+/// One structure's change between the two visits, as the truth lists it.
+#[derive(Clone, Debug, PartialEq, Deserialize)]
+pub struct TruthChange {
+    pub id: u32,
+    pub kind: String,
+    pub change: String,
+    x0: Option<f64>,
+    y0: Option<f64>,
+    x1: Option<f64>,
+    y1: Option<f64>,
+    pub reach_m: f64,
+    pub growth: f64,
+    pub height_change_m: f64,
+}
+
+impl TruthChange {
+    pub fn before_m(&self) -> Option<[f64; 2]> {
+        Some([self.x0?, self.y0?])
+    }
+
+    pub fn after_m(&self) -> Option<[f64; 2]> {
+        Some([self.x1?, self.y1?])
+    }
+
+    /// Tall enough to explain a region: every structure but pebbles.
+    fn is_measurable(&self) -> bool {
+        self.kind != "pebble"
+    }
+
+    fn is_coral(&self) -> bool {
+        matches!(self.kind.as_str(), "coral_head" | "coral_table" | "branching_coral")
+    }
+
+    /// Where its shape changed: its old place and its new one (one of them for removed,
+    /// new and grown), world metres.
+    fn changed_at(&self) -> Vec<[f64; 2]> {
+        match self.change.as_str() {
+            "removed" => self.before_m().into_iter().collect(),
+            "new" => self.after_m().into_iter().collect(),
+            "moved" => self.before_m().into_iter().chain(self.after_m()).collect(),
+            "grown" => self.after_m().into_iter().collect(),
+            _ => Vec::new(),
+        }
+    }
+}
+
+#[derive(Debug, thiserror::Error, PartialEq)]
+pub enum TruthError {
+    #[error("{source_name}: row {row}: {reason}")]
+    BadRow { source_name: String, row: usize, reason: String },
+}
+
+/// Reads `changes_A-B.csv` (`id,kind,change,x0,y0,x1,y1,reach_m,...`, as `revisit synth`
+/// writes it).
+pub fn parse_changes_csv(text: &str, source_name: &str) -> Result<Vec<TruthChange>, TruthError> {
+    let mut reader = csv::Reader::from_reader(text.as_bytes());
+    reader
+        .deserialize()
+        .enumerate()
+        .map(|(k, row)| {
+            row.map_err(|e| TruthError::BadRow {
+                source_name: source_name.to_owned(),
+                row: k + 2,
+                reason: e.to_string(),
+            })
+        })
+        .collect()
+}
+
+/// A grown coral: its true change of height against the map's.
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct GrowthScore {
+    pub id: u32,
+    pub truth_m: f64,
+    /// The largest change among the cells within half its reach of its centre, metres.
+    pub measured_m: f64,
+    /// `measured_m / truth_m - 1`.
+    pub relative_error: f64,
+    /// The truth's change exceeds the cells' level of detection there.
+    pub detectable: bool,
+}
+
+/// One region against the truth.
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct RegionTruth {
+    pub id: usize,
+    /// Its centre in the truth's world, metres.
+    pub centre_m: [f64; 2],
+    /// Ids of the changed structures it explains.
+    pub explains: Vec<u32>,
+    /// The structure (not a pebble) whose place, then or now, is nearest: id, change and
+    /// distance beyond its reach, metres.
+    pub nearest: Option<(u32, String, f64)>,
+}
+
+/// Precision and recall of a change map's regions, and the growth it measured.
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct ChangeScores {
+    pub rule: &'static str,
+    pub regions: usize,
+    /// Regions explaining a structure whose shape or place changed.
+    pub true_regions: usize,
+    pub precision: Option<f64>,
+    /// Ids of regions explaining nothing that changed.
+    pub false_regions: Vec<usize>,
+    pub by_region: Vec<RegionTruth>,
+    /// Corals moved or removed where the map measured.
+    pub targets: usize,
+    pub found: usize,
+    pub recall: Option<f64>,
+    /// Ids of targets no region explains.
+    pub missed: Vec<u32>,
+    /// Grown corals measured at their centre.
+    pub grown: Vec<GrowthScore>,
+    /// Median |relative error| over the detectable grown corals.
+    pub growth_median_abs_error: Option<f64>,
+}
+
+/// Scores `map` against `truth`, the model mapped into the truth's world by `truth_from_model`.
+pub fn score(map: &ChangeMap, truth: &[TruthChange], truth_from_model: &Similarity) -> ChangeScores {
+    let world = |p: &Point3<f64>| {
+        let w = truth_from_model.apply(p);
+        [w.x, w.y]
+    };
+    let cell_m = map.grid.cell * truth_from_model.scale;
+    let cells: Vec<[f64; 2]> = map.cells.iter().map(|c| world(&c.core)).collect();
+    let near = |a: [f64; 2], b: [f64; 2], r: f64| (a[0] - b[0]).hypot(a[1] - b[1]) <= r;
+    let explains =
+        |centre: [f64; 2], s: &TruthChange| s.changed_at().iter().any(|&p| near(centre, p, s.reach_m + cell_m));
+    let centres: Vec<[f64; 2]> = map.regions.iter().map(|r| world(&r.centre)).collect();
+
+    let by_region: Vec<RegionTruth> = map
+        .regions
+        .iter()
+        .zip(&centres)
+        .map(|(region, &centre)| {
+            let measurable = || truth.iter().filter(|s| s.is_measurable());
+            let places = |s: &TruthChange| s.before_m().into_iter().chain(s.after_m()).collect::<Vec<_>>();
+            let beyond = |s: &TruthChange| {
+                places(s)
+                    .iter()
+                    .map(|p| (centre[0] - p[0]).hypot(centre[1] - p[1]) - s.reach_m)
+                    .fold(f64::INFINITY, f64::min)
+            };
+            RegionTruth {
+                id: region.id,
+                centre_m: centre,
+                explains: measurable().filter(|s| explains(centre, s)).map(|s| s.id).collect(),
+                nearest: measurable()
+                    .map(|s| (s, beyond(s)))
+                    .min_by(|a, b| a.1.total_cmp(&b.1))
+                    .map(|(s, d)| (s.id, s.change.clone(), d)),
+            }
+        })
+        .collect();
+    let false_regions: Vec<usize> = by_region.iter().filter(|r| r.explains.is_empty()).map(|r| r.id).collect();
+    let measured_at = |p: [f64; 2], r: f64| cells.iter().any(|&c| near(c, p, r));
+    let targets: Vec<&TruthChange> = truth
+        .iter()
+        .filter(|s| s.is_coral() && matches!(s.change.as_str(), "removed" | "moved"))
+        .filter(|s| s.changed_at().iter().any(|&p| measured_at(p, 0.5 * s.reach_m)))
+        .collect();
+    let missed: Vec<u32> = targets.iter().filter(|s| !centres.iter().any(|&c| explains(c, s))).map(|s| s.id).collect();
+
+    let mut grown = Vec::new();
+    for s in truth.iter().filter(|s| s.is_coral() && s.change == "grown" && s.height_change_m > 0.0) {
+        let Some(centre) = s.after_m() else { continue };
+        let here: Vec<&crate::Cell> =
+            map.cells.iter().zip(&cells).filter(|(_, &c)| near(c, centre, 0.5 * s.reach_m)).map(|(c, _)| c).collect();
+        let Some(peak) = here.iter().max_by(|a, b| a.change.total_cmp(&b.change)) else { continue };
+        let measured_m = peak.change * truth_from_model.scale;
+        grown.push(GrowthScore {
+            id: s.id,
+            truth_m: s.height_change_m,
+            measured_m,
+            relative_error: measured_m / s.height_change_m - 1.0,
+            detectable: s.height_change_m > peak.lod95 * truth_from_model.scale,
+        });
+    }
+    let mut errors: Vec<f64> = grown.iter().filter(|g| g.detectable).map(|g| g.relative_error.abs()).collect();
+    errors.sort_by(f64::total_cmp);
+    let ratio = |a: usize, b: usize| (b > 0).then(|| a as f64 / b as f64);
+    let regions = map.regions.len();
+    ChangeScores {
+        rule: MATCHING_RULE,
+        regions,
+        true_regions: regions - false_regions.len(),
+        precision: ratio(regions - false_regions.len(), regions),
+        false_regions,
+        by_region,
+        targets: targets.len(),
+        found: targets.len() - missed.len(),
+        recall: ratio(targets.len() - missed.len(), targets.len()),
+        missed,
+        grown,
+        growth_median_abs_error: errors.get(errors.len() / 2).copied(),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::testing::{all_points, two_visits};
+
+    const CHANGES: &str = "\
+id,kind,change,x0,y0,x1,y1,reach_m,moved_m,turned_deg,growth,height_change_m,bleach_change
+1,coral_head,removed,-1,-1,,,0.4,0,0,0,0,0
+2,coral_head,new,,,1,1,0.4,0,0,0,0,0
+3,coral_table,moved,-1,1,-0.6,1.2,0.4,0.45,10,0,0,0
+4,branching_coral,bleached,1,-1,1,-1,0.3,0,0,0,0,0.8
+5,pebble,moved,0,0,0.05,0,0.03,0.05,0,0,0,0
+";
+
+    #[test]
+    fn regions_on_changed_corals_are_true_and_an_unseen_move_is_missed() {
+        let truth = parse_changes_csv(CHANGES, "changes_a-b.csv").expect("csv");
+        assert_eq!(truth.len(), 5);
+        let map = crate::detect(&two_visits(true), "a", "b", &all_points()).expect("map");
+        let scores = score(&map, &truth, &Similarity::identity());
+        assert_eq!((scores.regions, scores.true_regions, scores.precision), (2, 2, Some(1.0)));
+        // The removed head is found; the table the truth moved did not move in the model.
+        assert_eq!((scores.targets, scores.found, scores.missed.clone()), (2, 1, vec![3]));
+        let mut explained: Vec<Vec<u32>> = scores.by_region.iter().map(|r| r.explains.clone()).collect();
+        explained.sort();
+        assert_eq!(explained, [vec![1], vec![2]]);
+    }
+
+    #[test]
+    fn a_bad_row_is_named() {
+        let text = "id,kind,change,x0,y0,x1,y1,reach_m,moved_m,turned_deg,growth,height_change_m,bleach_change\n\
+                    1,coral_head,removed,x,-1,,,0.4,0,0,0,0,0\n";
+        let err = parse_changes_csv(text, "changes_a-b.csv").unwrap_err().to_string();
+        assert!(err.starts_with("changes_a-b.csv: row 2: "), "{err}");
+    }
+}

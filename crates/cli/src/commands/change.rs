@@ -1,0 +1,267 @@
+//! `revisit change`: where the reef changed between two visits of one joint model.
+
+use std::path::{Path, PathBuf};
+
+use anyhow::Context;
+use revisit_change::truth::{parse_changes_csv, score, ChangeScores};
+use revisit_change::{detect, encode_ply, map_png, regions_csv, ChangeMap, ChangeOptions};
+use revisit_core::Reconstruction;
+use revisit_eval::{parse_truth_poses_csv, score_truth, Alignment, TruthOptions};
+use revisit_pipeline::report::{ModelFrame, Report};
+use serde::Serialize;
+
+/// Compares visit B's surface with visit A's in one joint model, M3C2-style: on a grid of core
+/// points over the site, the distance from A's points to B's along A's surface normal, each
+/// with its 95% level of detection (LoD95, from the points' spread in the cylinder and the
+/// registration error between the visits, estimated as the robust spread of the change over
+/// the whole overlap). Cells beyond their LoD95 are grouped into raised and lowered regions.
+///
+/// Writes to OUT: change_A-B.ply (the core points coloured by signed change, with `change`,
+/// `lod95` and `significant` per point: Open3D, CloudCompare), change_A-B.png (a top-down map,
+/// north of the map frame up, with a scale bar), regions_A-B.csv (id, sign, cells, area,
+/// centre, mean and peak change) and change_A-B.json (every figure). Sizes are in the model's
+/// unit: metres when it was mapped with navigation priors (`reconstruct --nav`), COLMAP's
+/// arbitrary unit otherwise; the defaults scale with the survey's altitude.
+#[derive(clap::Args)]
+pub struct Args {
+    /// A `reconstruct` work folder (its chosen model, and its report for the unit) or a COLMAP
+    /// model folder (the largest model in it).
+    #[arg(long, value_name = "DIR")]
+    model: PathBuf,
+    /// The earlier visit (session name).
+    #[arg(long, value_name = "A")]
+    from: String,
+    /// The later visit.
+    #[arg(long, value_name = "B")]
+    to: String,
+    /// Output folder (created if missing).
+    #[arg(long, value_name = "DIR")]
+    out: PathBuf,
+    /// Score the map against a synthetic survey's truth folder (poses.csv and
+    /// changes_A-B.csv, as `revisit synth` writes them): precision and recall of the regions
+    /// on moved and removed corals, and the growth measured on grown ones.
+    #[arg(long, value_name = "DIR")]
+    truth: Option<PathBuf>,
+    /// Spacing of the core points, model units [default: 4% of the altitude].
+    #[arg(long, value_name = "SIZE")]
+    cell: Option<f64>,
+    /// Radius of the measuring cylinder, model units [default: 8% of the altitude].
+    #[arg(long, value_name = "SIZE")]
+    radius: Option<f64>,
+    /// Radius of the neighbourhood a normal is fitted to, model units [default: 50% of the
+    /// altitude].
+    #[arg(long, value_name = "SIZE")]
+    normal_radius: Option<f64>,
+    /// Largest change measured (the cylinder's half length), model units [default: 50% of the
+    /// altitude].
+    #[arg(long, value_name = "SIZE")]
+    max_depth: Option<f64>,
+    /// Fewest points of each visit in a cylinder for a measurement.
+    #[arg(long, default_value_t = 4, value_name = "N")]
+    min_points: usize,
+    /// Fewest cells of a reported region.
+    #[arg(long, default_value_t = 3, value_name = "N")]
+    min_cells: usize,
+    /// Fewest images observing a point for it to count (a point seen twice has the least
+    /// certain depth).
+    #[arg(long, default_value_t = 3, value_name = "N")]
+    min_track: usize,
+}
+
+/// change_A-B.json.
+#[derive(Serialize)]
+struct Summary<'a> {
+    model: String,
+    unit: &'a str,
+    options: &'a ChangeOptions,
+    scales: &'a revisit_change::Scales,
+    frame: &'a revisit_change::MapFrame,
+    grid: &'a revisit_change::Grid,
+    points_from: usize,
+    points_to: usize,
+    points_shared: usize,
+    cells_measured: usize,
+    cells_significant: usize,
+    registration: f64,
+    median_change: f64,
+    regions: &'a [revisit_change::Region],
+    #[serde(skip_serializing_if = "Option::is_none")]
+    truth: Option<&'a ChangeScores>,
+}
+
+pub fn run(args: Args) -> anyhow::Result<()> {
+    let options = ChangeOptions {
+        cell: args.cell,
+        radius: args.radius,
+        normal_radius: args.normal_radius,
+        max_depth: args.max_depth,
+        min_points: args.min_points,
+        min_cells: args.min_cells,
+        min_track: args.min_track,
+    };
+    let (path, model, frame) = read_model(&args.model).with_context(|| format!("--model {}", args.model.display()))?;
+    let unit = match frame {
+        ModelFrame::Navigation => "m",
+        ModelFrame::Arbitrary => "units",
+    };
+    let map = detect(&model, &args.from, &args.to, &options)?;
+    let truth = match &args.truth {
+        Some(dir) => Some(score_on_truth(&map, &model, dir).with_context(|| format!("--truth {}", dir.display()))?),
+        None => None,
+    };
+
+    std::fs::create_dir_all(&args.out).with_context(|| format!("creating --out {}", args.out.display()))?;
+    let stem = format!("{}-{}", file_safe(&args.from), file_safe(&args.to));
+    let write = |name: String, bytes: &[u8]| {
+        let path = args.out.join(name);
+        std::fs::write(&path, bytes).with_context(|| format!("writing {}", path.display()))
+    };
+    write(format!("change_{stem}.ply"), &encode_ply(&map))?;
+    write(format!("regions_{stem}.csv"), regions_csv(&map)?.as_bytes())?;
+    let png = args.out.join(format!("change_{stem}.png"));
+    map_png(&map, unit).save(&png).with_context(|| format!("writing {}", png.display()))?;
+    let summary = Summary {
+        model: path.display().to_string(),
+        unit,
+        options: &options,
+        scales: &map.scales,
+        frame: &map.frame,
+        grid: &map.grid,
+        points_from: map.points_from,
+        points_to: map.points_to,
+        points_shared: map.points_shared,
+        cells_measured: map.cells.len(),
+        cells_significant: map.significant_cells(),
+        registration: map.registration,
+        median_change: map.median_change,
+        regions: &map.regions,
+        truth: truth.as_ref(),
+    };
+    write(format!("change_{stem}.json"), (serde_json::to_string_pretty(&summary)? + "\n").as_bytes())?;
+    print!("{}", table(&map, unit, truth.as_ref()));
+    println!(
+        "wrote {}",
+        args.out
+            .join(format!("{{change_{stem}.ply,change_{stem}.png,regions_{stem}.csv,change_{stem}.json}}"))
+            .display()
+    );
+    Ok(())
+}
+
+/// The model to compare and its frame: a work folder's chosen model, or the largest model of
+/// a COLMAP folder (frame unknown: arbitrary).
+fn read_model(dir: &Path) -> anyhow::Result<(PathBuf, Reconstruction, ModelFrame)> {
+    let report_path = dir.join("report.json");
+    if report_path.is_file() {
+        let report = Report::read(&report_path)?;
+        let chosen =
+            report.chosen_model.context("report.json names no model: the reconstruction registered nothing")?;
+        // The report names it as the reconstruction saw it (relative to where it ran): the
+        // work folder may have moved since, so find its tail (model/...) under `dir`.
+        let chosen = std::iter::successors(Some(chosen.as_path()), |p| {
+            let mut parts = p.components();
+            parts.next().map(|_| parts.as_path()).filter(|rest| !rest.as_os_str().is_empty())
+        })
+        .map(|tail| dir.join(tail))
+        .find(|candidate| candidate.is_dir())
+        .with_context(|| format!("its chosen model {} is not in it", chosen.display()))?;
+        let model = revisit_colmap::read_model(&chosen).with_context(|| format!("reading {}", chosen.display()))?;
+        return Ok((chosen, model, report.mapping.frame));
+    }
+    let models = revisit_colmap::read_models(dir)?;
+    let count = models.len();
+    let (path, model) = models
+        .into_iter()
+        .max_by_key(|(_, model)| model.images.len())
+        .context("no COLMAP model in it (cameras, images and points3D as .bin or .txt)")?;
+    if count > 1 {
+        tracing::info!("{count} models in {}: comparing the largest, {}", dir.display(), path.display());
+    }
+    Ok((path, model, ModelFrame::Arbitrary))
+}
+
+fn score_on_truth(map: &ChangeMap, model: &Reconstruction, dir: &Path) -> anyhow::Result<ChangeScores> {
+    let poses_path = dir.join("poses.csv");
+    let text = std::fs::read_to_string(&poses_path).with_context(|| format!("reading {}", poses_path.display()))?;
+    let poses = parse_truth_poses_csv(&text, &poses_path.display().to_string())?;
+    let aligned = score_truth(std::slice::from_ref(model), &poses, &TruthOptions { alignment: Alignment::Union });
+    let truth_from_model = aligned
+        .similarities
+        .first()
+        .copied()
+        .flatten()
+        .context("the model's cameras could not be aligned to the truth's (fewer than 3 images in common)")?;
+    let changes_path = dir.join(format!("changes_{}-{}.csv", map.from, map.to));
+    let text = std::fs::read_to_string(&changes_path).with_context(|| format!("reading {}", changes_path.display()))?;
+    let changes = parse_changes_csv(&text, &changes_path.display().to_string())?;
+    Ok(score(map, &changes, &truth_from_model))
+}
+
+fn file_safe(name: &str) -> String {
+    name.chars().map(|c| if c.is_ascii_alphanumeric() || "-_.".contains(c) { c } else { '_' }).collect()
+}
+
+fn table(map: &ChangeMap, unit: &str, truth: Option<&ChangeScores>) -> String {
+    use std::fmt::Write as _;
+    let mut out = String::new();
+    let s = &map.scales;
+    let _ = writeln!(
+        out,
+        "change from {} to {}: {} points of {}, {} of {}, {} shared",
+        map.from, map.to, map.points_from, map.from, map.points_to, map.to, map.points_shared
+    );
+    let _ = writeln!(
+        out,
+        "altitude {:.3} {unit}; cell {:.3}, cylinder radius {:.3}, normal radius {:.3}, max depth {:.3}",
+        s.altitude, s.cell, s.radius, s.normal_radius, s.max_depth
+    );
+    let _ = writeln!(
+        out,
+        "{} cells measured, {} beyond their LoD95; registration term {:.4} {unit}, median change {:+.4} {unit}",
+        map.cells.len(),
+        map.significant_cells(),
+        map.registration,
+        map.median_change
+    );
+    let _ = writeln!(out, "{} regions:", map.regions.len());
+    let _ = writeln!(
+        out,
+        "{:>4} {:<8} {:>6} {:>10} {:>12} {:>12} {:>10}",
+        "id", "sign", "cells", "area", "mean change", "peak change", "LoD95"
+    );
+    for r in &map.regions {
+        let _ = writeln!(
+            out,
+            "{:>4} {:<8} {:>6} {:>10.4} {:>+12.4} {:>+12.4} {:>10.4}",
+            r.id,
+            r.sign.name(),
+            r.cells.len(),
+            r.area,
+            r.mean_change,
+            r.peak_change,
+            r.mean_lod95
+        );
+    }
+    if let Some(t) = truth {
+        let pct = |v: Option<f64>| v.map_or_else(|| "-".to_owned(), |v| format!("{:.0}%", 100.0 * v));
+        let _ = writeln!(
+            out,
+            "against the truth: precision {} ({} of {} regions), recall {} ({} of {} moved or removed corals measured)",
+            pct(t.precision),
+            t.true_regions,
+            t.regions,
+            pct(t.recall),
+            t.found,
+            t.targets
+        );
+        let detectable = t.grown.iter().filter(|g| g.detectable).count();
+        let _ = writeln!(
+            out,
+            "grown corals measured: {} ({} above the LoD95), median |growth error| {}",
+            t.grown.len(),
+            detectable,
+            pct(t.growth_median_abs_error)
+        );
+    }
+    out
+}
