@@ -107,6 +107,29 @@ fn unchanged_reef_reconstructs_to_subpixel_cross_visit_error() {
     let centre_rel = scores["truth"]["overall"]["centre_median_rel"].as_f64().unwrap();
     assert!(centre_rel < 0.01, "camera-centre error {centre_rel} of the scene size");
 
+    // The change map of a reef that did not change: measured over the visits' overlap, and no
+    // region beyond its level of detection.
+    let change = dir.path().join("change");
+    let (work_s, change_s) = (work.to_str().unwrap(), change.to_str().unwrap());
+    let truth_s = reef.join("truth").display().to_string();
+    let change_args = ["change", "--model", work_s, "--from", "s1", "--to", "s3", "--out", change_s];
+    let out = run_ok(&[&change_args[..], &["--truth", &truth_s]].concat());
+    println!("{}", String::from_utf8_lossy(&out.stdout));
+    let summary = read_json(&change.join("change_s1-s3.json"));
+    let measured = summary["cells_measured"].as_u64().unwrap();
+    assert!(measured >= 300, "{summary:#}");
+    assert_eq!(summary["regions"].as_array().unwrap().len(), 0, "{summary:#}");
+    assert_eq!(summary["truth"]["regions"], 0);
+    let ply = std::fs::read(change.join("change_s1-s3.ply")).unwrap();
+    assert!(String::from_utf8_lossy(&ply[..400]).contains(&format!("element vertex {measured}\n")));
+    let csv = std::fs::read_to_string(change.join("regions_s1-s3.csv")).unwrap();
+    assert_eq!(csv.lines().count(), 1, "header only: {csv}");
+    let png = image::open(change.join("change_s1-s3.png")).unwrap();
+    assert!(png.width() >= 520);
+    let err = run_err(&["change", "--model", work_s, "--from", "s1", "--to", "s9", "--out", change_s]);
+    assert!(err.contains("visit s9 has no image in the model (its visits: s1, s2, s3)"), "{err}");
+    assert_eq!(err.lines().count(), 1, "{err}");
+
     // Visits flown with one uncalibrated camera share it and refine it jointly: one camera for
     // both, and still sub-pixel across them.
     let two = ["s1", "s2"];

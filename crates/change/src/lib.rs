@@ -1,7 +1,9 @@
 //! revisit-change: where the reef changed between two visits of one joint model.
 //!
 //! Every 3D point of a joint model is tagged with the visits whose images observe it
-//! ([`visits_of_points`]). [`detect`] compares the surface visit B observed with visit A's in
+//! ([`visits_of_points`]). [`detect`] compares the surface visit B observed with visit A's,
+//! each as the points only that visit observes (a point tracked across both is one sample of
+//! both surfaces: it would pull their difference to zero and hide the registration error), in
 //! the manner of M3C2 (Lague, Brodu and Leroux 2013, ISPRS J. 82): on a grid of core points
 //! over the site, a normal is fitted to A's points around each, and the change is the
 //! distance between the medians of A's and B's points along that normal, within a cylinder.
@@ -56,6 +58,10 @@ pub struct ChangeOptions {
     pub min_points: usize,
     /// Fewest cells of a reported region. Default 3.
     pub min_cells: usize,
+    /// A region is reported when its mean change is at least this many times its cells' mean
+    /// LoD95. Default 2: a guard against chance clusters, since one cell in twenty exceeds its
+    /// LoD95 by chance and a map tests thousands.
+    pub region_lod_factor: f64,
     /// Fewest observations of a point for it to count. Default 3: a point seen in two
     /// images has the least certain depth.
     pub min_track: usize,
@@ -70,6 +76,7 @@ impl Default for ChangeOptions {
             max_depth: None,
             min_points: 4,
             min_cells: 3,
+            region_lod_factor: 2.0,
             min_track: 3,
         }
     }
@@ -203,7 +210,7 @@ pub struct ChangeMap {
     pub scales: Scales,
     pub frame: MapFrame,
     pub grid: Grid,
-    /// Points observed by `from`, by `to`, and by both.
+    /// Points observed by `from` only, by `to` only, and by both (left out of the comparison).
     pub points_from: usize,
     pub points_to: usize,
     pub points_shared: usize,
@@ -266,14 +273,12 @@ pub fn detect(model: &Reconstruction, from: &str, to: &str, options: &ChangeOpti
     let (mut cloud_from, mut cloud_to, mut shared) = (Vec::new(), Vec::new(), 0);
     for (id, point) in model.points3d.iter().filter(|(_, p)| p.track.len() >= options.min_track) {
         let seen = &visits[id];
-        let (a, b) = (seen.contains(from), seen.contains(to));
-        if a {
-            cloud_from.push(point.xyz);
+        match (seen.contains(from), seen.contains(to)) {
+            (true, true) => shared += 1,
+            (true, false) => cloud_from.push(point.xyz),
+            (false, true) => cloud_to.push(point.xyz),
+            (false, false) => {}
         }
-        if b {
-            cloud_to.push(point.xyz);
-        }
-        shared += usize::from(a && b);
     }
     for (visit, cloud) in [(from, &cloud_from), (to, &cloud_to)] {
         if cloud.len() < 10 {
@@ -308,7 +313,7 @@ pub fn detect(model: &Reconstruction, from: &str, to: &str, options: &ChangeOpti
         cell.lod95 += 1.96 * registration;
         cell.significant = cell.change.abs() > cell.lod95;
     }
-    let regions = regions(&grid, &cells, options.min_cells);
+    let regions = regions(&grid, &cells, options);
     Ok(ChangeMap {
         from: from.to_owned(),
         to: to.to_owned(),
@@ -356,6 +361,10 @@ fn resolve_scales(model: &Reconstruction, visits: [&str; 2], options: &ChangeOpt
         normal_radius: pick(options.normal_radius, 0.5, "--normal-radius")?,
         max_depth: pick(options.max_depth, 0.5, "--max-depth")?,
     };
+    if !(options.region_lod_factor.is_finite() && options.region_lod_factor >= 0.0) {
+        let reason = format!("{} is not a factor of 0 or more", options.region_lod_factor);
+        return Err(ChangeError::BadOption { option: "--region-lod-factor", reason });
+    }
     if options.min_points < 1 {
         return Err(ChangeError::BadOption { option: "--min-points", reason: "must be at least 1".into() });
     }
@@ -510,7 +519,7 @@ fn measure(
 
 /// Significant cells grouped by sign into 8-connected regions of at least `min_cells`,
 /// largest first.
-fn regions(grid: &Grid, cells: &[Cell], min_cells: usize) -> Vec<Region> {
+fn regions(grid: &Grid, cells: &[Cell], options: &ChangeOptions) -> Vec<Region> {
     let mut at: BTreeMap<(usize, usize), usize> = BTreeMap::new();
     for (k, cell) in cells.iter().enumerate().filter(|(_, c)| c.significant) {
         at.insert((cell.col, cell.row), k);
@@ -540,7 +549,7 @@ fn regions(grid: &Grid, cells: &[Cell], min_cells: usize) -> Vec<Region> {
                 }
             }
         }
-        if members.len() < min_cells.max(1) {
+        if members.len() < options.min_cells.max(1) {
             continue;
         }
         members.sort_unstable();
@@ -562,6 +571,9 @@ fn regions(grid: &Grid, cells: &[Cell], min_cells: usize) -> Vec<Region> {
             mean_lod95: members.iter().map(|&k| cells[k].lod95).sum::<f64>() / n,
             cells: members,
         });
+        if found.last().is_some_and(|r| r.mean_change.abs() < options.region_lod_factor * r.mean_lod95) {
+            found.pop();
+        }
     }
     found.sort_by(|a, b| b.cells.len().cmp(&a.cells.len()).then(a.cells.cmp(&b.cells)));
     for (k, region) in found.iter_mut().enumerate() {

@@ -112,6 +112,8 @@ pub struct RegionTruth {
 #[derive(Clone, Debug, PartialEq, Serialize)]
 pub struct ChangeScores {
     pub rule: &'static str,
+    /// The similarity that put the model on the truth (its cameras on the true ones).
+    pub truth_from_model: Similarity,
     pub regions: usize,
     /// Regions explaining a structure whose shape or place changed.
     pub true_regions: usize,
@@ -198,6 +200,7 @@ pub fn score(map: &ChangeMap, truth: &[TruthChange], truth_from_model: &Similari
     let regions = map.regions.len();
     ChangeScores {
         rule: MATCHING_RULE,
+        truth_from_model: *truth_from_model,
         regions,
         true_regions: regions - false_regions.len(),
         precision: ratio(regions - false_regions.len(), regions),

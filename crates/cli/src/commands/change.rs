@@ -62,6 +62,10 @@ pub struct Args {
     /// Fewest cells of a reported region.
     #[arg(long, default_value_t = 3, value_name = "N")]
     min_cells: usize,
+    /// A region is reported when its mean change is at least this many times its cells' mean
+    /// LoD95 (a guard against chance clusters: one cell in twenty passes its LoD95 by chance).
+    #[arg(long, default_value_t = 2.0, value_name = "F")]
+    region_lod_factor: f64,
     /// Fewest images observing a point for it to count (a point seen twice has the least
     /// certain depth).
     #[arg(long, default_value_t = 3, value_name = "N")]
@@ -97,6 +101,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         max_depth: args.max_depth,
         min_points: args.min_points,
         min_cells: args.min_cells,
+        region_lod_factor: args.region_lod_factor,
         min_track: args.min_track,
     };
     let (path, model, frame) = read_model(&args.model).with_context(|| format!("--model {}", args.model.display()))?;
@@ -207,8 +212,8 @@ fn table(map: &ChangeMap, unit: &str, truth: Option<&ChangeScores>) -> String {
     let s = &map.scales;
     let _ = writeln!(
         out,
-        "change from {} to {}: {} points of {}, {} of {}, {} shared",
-        map.from, map.to, map.points_from, map.from, map.points_to, map.to, map.points_shared
+        "change from {} to {}: points seen by {} only {}, by {} only {}, by both {} (not compared)",
+        map.from, map.to, map.from, map.points_from, map.to, map.points_to, map.points_shared
     );
     let _ = writeln!(
         out,
@@ -223,24 +228,26 @@ fn table(map: &ChangeMap, unit: &str, truth: Option<&ChangeScores>) -> String {
         map.registration,
         map.median_change
     );
-    let _ = writeln!(out, "{} regions:", map.regions.len());
-    let _ = writeln!(
-        out,
-        "{:>4} {:<8} {:>6} {:>10} {:>12} {:>12} {:>10}",
-        "id", "sign", "cells", "area", "mean change", "peak change", "LoD95"
-    );
-    for r in &map.regions {
+    let _ = writeln!(out, "{} regions{}", map.regions.len(), if map.regions.is_empty() { "" } else { ":" });
+    if !map.regions.is_empty() {
         let _ = writeln!(
             out,
-            "{:>4} {:<8} {:>6} {:>10.4} {:>+12.4} {:>+12.4} {:>10.4}",
-            r.id,
-            r.sign.name(),
-            r.cells.len(),
-            r.area,
-            r.mean_change,
-            r.peak_change,
-            r.mean_lod95
+            "{:>4} {:<8} {:>6} {:>10} {:>12} {:>12} {:>10}",
+            "id", "sign", "cells", "area", "mean change", "peak change", "LoD95"
         );
+        for r in &map.regions {
+            let _ = writeln!(
+                out,
+                "{:>4} {:<8} {:>6} {:>10.4} {:>+12.4} {:>+12.4} {:>10.4}",
+                r.id,
+                r.sign.name(),
+                r.cells.len(),
+                r.area,
+                r.mean_change,
+                r.peak_change,
+                r.mean_lod95
+            );
+        }
     }
     if let Some(t) = truth {
         let pct = |v: Option<f64>| v.map_or_else(|| "-".to_owned(), |v| format!("{:.0}%", 100.0 * v));
