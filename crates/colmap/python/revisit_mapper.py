@@ -219,6 +219,14 @@ def main() -> int:
         options.mapper.abs_pose_min_num_inliers = args.min_pose_inliers
         options.constant_cameras = constant
         options.mapper.constant_cameras = constant
+        if constant and constant >= all_cameras(args.database):
+            # pycolmap 4.2.1's incremental pipeline does not hold every constant camera in
+            # every bundle adjustment: a calibrated camera's focal length was seen refined from
+            # 512 to 163 px (a visit bent by 10 degrees). With every camera calibrated, turn
+            # intrinsics refinement off altogether.
+            options.ba_refine_focal_length = False
+            options.ba_refine_principal_point = False
+            options.ba_refine_extra_params = False
         raw = args.output / "raw"
         raw.mkdir()
         models = pycolmap.incremental_mapping(
