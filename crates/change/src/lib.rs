@@ -12,8 +12,9 @@
 //! median by a seeded bootstrap, not `s^2/n` (at a colony's edge a cylinder's points sit on two
 //! surfaces, the share on each differs between visits, and only the bootstrap sees that the
 //! median may land on either), and `reg`, the registration error between the visits, is
-//! estimated from the data as the robust spread (1.4826 x MAD) of the change over the whole
-//! overlap (most of a reef does not change between visits; registration differs everywhere).
+//! estimated from the data as the median change's magnitude plus its robust spread (1.4826 x
+//! MAD) over the whole overlap (most of a reef does not change between visits; registration
+//! differs everywhere, and an offset common to the whole overlap looks like one).
 //! Cells whose change exceeds their LoD95 are grouped into [`Region`]s of one sign.
 //!
 //! Outputs: [`encode_ply`] (core points coloured by signed change, with the change and its
@@ -216,7 +217,8 @@ pub struct ChangeMap {
     pub points_shared: usize,
     /// Measured cells, in grid order (row, then column).
     pub cells: Vec<Cell>,
-    /// The registration term of the LoD95 (1.4826 x MAD of the change over all cells).
+    /// The registration term of the LoD95: the median change's magnitude plus 1.4826 x the
+    /// MAD of the change over all cells.
     pub registration: f64,
     /// Median change over all cells: a vertical offset between the visits' surfaces.
     pub median_change: f64,
@@ -235,7 +237,7 @@ pub enum ChangeError {
     NoVisit { visit: String, present: String },
     #[error("--from and --to name the same visit ({0})")]
     SameVisit(String),
-    #[error("visit {visit} observes {points} points of the model: too few to compare")]
+    #[error("visit {visit} alone observes {points} points of the model (seen in --min-track images or more): too few to compare")]
     TooFewPoints { visit: String, points: usize },
     #[error("invalid option {option}: {reason}")]
     BadOption { option: &'static str, reason: String },
@@ -308,7 +310,8 @@ pub fn detect(model: &Reconstruction, from: &str, to: &str, options: &ChangeOpti
     let changes: Vec<f64> = cells.iter().map(|c| c.change).collect();
     let median_change = median(&changes);
     let deviations: Vec<f64> = changes.iter().map(|c| (c - median_change).abs()).collect();
-    let registration = 1.4826 * median(&deviations);
+    // A vertical offset common to the whole overlap cannot be told from a registration error.
+    let registration = median_change.abs() + 1.4826 * median(&deviations);
     for cell in &mut cells {
         cell.lod95 += 1.96 * registration;
         cell.significant = cell.change.abs() > cell.lod95;

@@ -11,10 +11,12 @@ use revisit_pipeline::report::{ModelFrame, Report};
 use serde::Serialize;
 
 /// Compares visit B's surface with visit A's in one joint model, M3C2-style: on a grid of core
-/// points over the site, the distance from A's points to B's along A's surface normal, each
-/// with its 95% level of detection (LoD95, from the points' spread in the cylinder and the
-/// registration error between the visits, estimated as the robust spread of the change over
-/// the whole overlap). Cells beyond their LoD95 are grouped into raised and lowered regions.
+/// points over the site, the distance from the points only A observes to those only B
+/// observes, along A's surface normal, each with its 95% level of detection (LoD95, from the
+/// bootstrapped spread of each visit's median in the cylinder and the registration error
+/// between the visits, estimated from the change over the whole overlap: its median's size
+/// plus its robust spread). Cells beyond their LoD95 are grouped into raised and lowered
+/// regions; a region is kept when its mean change is at least twice its LoD95.
 ///
 /// Writes to OUT: change_A-B.ply (the core points coloured by signed change, with `change`,
 /// `lod95` and `significant` per point: Open3D, CloudCompare), change_A-B.png (a top-down map,
