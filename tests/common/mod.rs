@@ -68,7 +68,24 @@ pub fn camera(reef: &Path) -> String {
 /// calibrated camera and `extra` options.
 pub fn reconstruct(reef: &Path, sessions: &[&str], work: &Path, extra: &[&str]) -> serde_json::Value {
     let camera = ["--camera".to_owned(), camera(reef)];
-    reconstruct_uncalibrated(reef, sessions, work, &[&camera.each_ref().map(String::as_str)[..], extra].concat())
+    let report =
+        reconstruct_uncalibrated(reef, sessions, work, &[&camera.each_ref().map(String::as_str)[..], extra].concat());
+    assert_calibration_held(work, &camera[1]);
+    report
+}
+
+/// Every camera of `work`'s models has the calibration `camera` gave (`MODEL:p1,p2,...`):
+/// mapping holds a calibrated camera fixed.
+pub fn assert_calibration_held(work: &Path, camera: &str) {
+    let params: Vec<f64> = camera.split_once(':').unwrap().1.split(',').map(|p| p.parse().unwrap()).collect();
+    if !work.join("model").is_dir() {
+        return;
+    }
+    for (path, model) in revisit_colmap::read_models(&work.join("model")).unwrap() {
+        for camera in model.cameras.values() {
+            assert_eq!(camera.params, params, "{}: camera {} was refined", path.display(), camera.camera_id);
+        }
+    }
 }
 
 /// `revisit reconstruct` over `sessions` of the reef into `work` with `extra` options only.
