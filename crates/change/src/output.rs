@@ -113,20 +113,25 @@ const FOOTER: u32 = 60;
 /// The map's longer side, pixels, about.
 const MAP_SIDE: usize = 900;
 
-/// A top-down PNG of the change, north (the map frame's) up: each cell coloured by its signed
-/// change (grey within its level of detection, white unmeasured), regions numbered as in the
-/// CSV, a scale bar and a colour bar in `unit`.
+/// A top-down PNG of the measured area, north (the map frame's) up: each cell coloured by its
+/// signed change (grey within its level of detection, white unmeasured), regions numbered as in
+/// the CSV, a scale bar and a colour bar in `unit`.
 pub fn map_png(map: &ChangeMap, unit: &str) -> RgbImage {
     let grid = &map.grid;
-    let k = (MAP_SIDE / grid.cols.max(grid.rows)).clamp(1, 16) as u32;
-    let (map_w, map_h) = (grid.cols as u32 * k, grid.rows as u32 * k);
+    // The window of measured cells (the grid spans every point, strays included).
+    let (c0, c1) =
+        (map.cells.iter().map(|c| c.col).min().unwrap_or(0), map.cells.iter().map(|c| c.col).max().unwrap_or(0));
+    let (r0, r1) =
+        (map.cells.iter().map(|c| c.row).min().unwrap_or(0), map.cells.iter().map(|c| c.row).max().unwrap_or(0));
+    let (cols, rows) = (c1 - c0 + 1, r1 - r0 + 1);
+    let k = (MAP_SIDE / cols.max(rows)).clamp(1, 16) as u32;
+    let (map_w, map_h) = (cols as u32 * k, rows as u32 * k);
     let width = (MARGIN + map_w + LEGEND).max(520);
     let height = TITLE + map_h + FOOTER;
     let mut img = RgbImage::from_pixel(width, height, WHITE);
     let range = colour_range(map);
-    let top_of_row = |row: usize| TITLE + (grid.rows - 1 - row) as u32 * k;
     for cell in &map.cells {
-        let (left, top) = (MARGIN + cell.col as u32 * k, top_of_row(cell.row));
+        let (left, top) = (MARGIN + (cell.col - c0) as u32 * k, TITLE + (r1 - cell.row) as u32 * k);
         fill_rect(&mut img, left, top, left + k - 1, top + k - 1, Rgb(colour(range, cell)));
     }
     hline(&mut img, MARGIN - 1, MARGIN + map_w, TITLE - 1, BLACK);
@@ -134,8 +139,8 @@ pub fn map_png(map: &ChangeMap, unit: &str) -> RgbImage {
     vline(&mut img, MARGIN - 1, TITLE - 1, TITLE + map_h, BLACK);
     vline(&mut img, MARGIN + map_w, TITLE - 1, TITLE + map_h, BLACK);
     for region in &map.regions {
-        let x = MARGIN as f64 + (region.centre_map[0] - grid.min[0]) / grid.cell * k as f64;
-        let y = (TITLE + map_h) as f64 - (region.centre_map[1] - grid.min[1]) / grid.cell * k as f64;
+        let x = MARGIN as f64 + ((region.centre_map[0] - grid.min[0]) / grid.cell - c0 as f64) * k as f64;
+        let y = (TITLE + map_h) as f64 - ((region.centre_map[1] - grid.min[1]) / grid.cell - r0 as f64) * k as f64;
         let label = region.id.to_string();
         let (lx, ly) = ((x as u32).saturating_sub(text_width(&label) / 2), (y as u32).saturating_sub(TEXT_HEIGHT / 2));
         fill_rect(
@@ -148,11 +153,13 @@ pub fn map_png(map: &ChangeMap, unit: &str) -> RgbImage {
         );
         draw_text(&mut img, lx, ly, &label, BLACK);
     }
-    let title = format!("CHANGE FROM {} TO {}: {} REGIONS   (SIZES IN {})", map.from, map.to, map.regions.len(), unit);
+    let plural = if map.regions.len() == 1 { "" } else { "S" };
+    let title =
+        format!("CHANGE FROM {} TO {}: {} REGION{plural}   (SIZES IN {unit})", map.from, map.to, map.regions.len());
     draw_text(&mut img, MARGIN, 18, &title, BLACK);
 
     // Scale bar: a round length near a fifth of the map's width.
-    let bar = nice_ceil(grid.cols as f64 * grid.cell / 5.0);
+    let bar = nice_ceil(cols as f64 * grid.cell / 5.0);
     let bar_px = ((bar / grid.cell) * k as f64).round() as u32;
     let y = TITLE + map_h + 20;
     fill_rect(&mut img, MARGIN, y, MARGIN + bar_px, y + 4, BLACK);
