@@ -113,7 +113,12 @@ impl MapFrame {
 
     /// The model point at map coordinates and height.
     pub fn to_model(&self, east: f64, north: f64, height: f64) -> Point3<f64> {
-        self.origin + self.east * east + self.north * north + self.up * height
+        self.origin + self.direction_to_model(&Vector3::new(east, north, height))
+    }
+
+    /// A direction given in map axes (east, north, up), in the model frame.
+    pub fn direction_to_model(&self, v: &Vector3<f64>) -> Vector3<f64> {
+        self.east * v.x + self.north * v.y + self.up * v.z
     }
 }
 
@@ -506,12 +511,11 @@ fn measure(
     let seed = 2 * (row * grid.cols + col) as u64;
     let sampling = (median_variance(&a, seed) + median_variance(&b, seed + 1)).sqrt();
     let change = median_in_place(&mut b) - median_in_place(&mut a);
-    let to_model = |v: Vector3<f64>| frame.east * v.x + frame.north * v.y + frame.up * v.z;
     Some(Cell {
         col,
         row,
-        core: frame.origin + to_model(core),
-        normal: to_model(normal),
+        core: frame.to_model(core.x, core.y, core.z),
+        normal: frame.direction_to_model(&normal),
         change,
         lod95: 1.96 * sampling,
         points_from: a.len(),
