@@ -15,11 +15,11 @@ want=$(sha256sum python/requirements.txt | cut -d' ' -f1)
 if [ -x .venv/bin/python ] && [ "$(cat "$stamp" 2>/dev/null)" = "$want" ]; then
   echo "setup: .venv is up to date"
 else
-  echo "setup: creating .venv (pycolmap, numpy, opencv, onnxruntime, open3d, plotly)"
+  echo "setup: creating .venv (pycolmap, numpy, scipy, opencv, onnxruntime, open3d, plotly)"
   [ -x .venv/bin/python ] || "$PYTHON" -m venv .venv
   .venv/bin/python -m pip install --quiet --disable-pip-version-check --upgrade pip
   .venv/bin/python -m pip install --quiet --disable-pip-version-check -r python/requirements.txt
-  .venv/bin/python -c "import pycolmap, cv2, numpy, onnxruntime, open3d, plotly; print('setup: pycolmap', pycolmap.__version__)"
+  .venv/bin/python -c "import pycolmap, cv2, numpy, scipy, onnxruntime, open3d, plotly; print('setup: pycolmap', pycolmap.__version__)"
   echo "$want" > "$stamp"
 fi
 

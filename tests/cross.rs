@@ -121,6 +121,30 @@ fn strong_change_links_with_place_recognition_and_roll_search_not_with_sift() {
     if count("set_aside") > 0 {
         assert_eq!(report["mapping"]["extended"], false, "{report:#}");
     }
+
+    // Change-aware mapping on the same store (nothing is matched again): every visit mapped
+    // alone and placed by its cross-visit matches' consensus, one joint model over the matches
+    // that hold, each visit pair's kept and dropped matches reported.
+    let plain_error = cross_error_px(&reef, &three, &vpr).expect("clicks scored");
+    let registered = |report: &serde_json::Value| three.map(|s| report["sessions"][s]["registered"].as_u64().unwrap());
+    let plain_registered = registered(&report);
+    let report = reconstruct(&reef, &three, &vpr, &["--change-aware"]);
+    assert_eq!(report["cross"]["learned_matching"]["done"], 0, "{report:#}");
+    assert_eq!(report["mapping"]["extended"], false, "{report:#}");
+    assert_eq!(report["models"], 1, "{report:#}");
+    // The image the roll prediction leaves without a link (above) stays out; every other joins.
+    let change_aware_registered = registered(&report);
+    assert!(change_aware_registered.iter().zip(plain_registered).all(|(c, p)| *c >= p), "{report:#}");
+    let change_aware = &report["mapping"]["change_aware"];
+    assert_eq!(change_aware["placed"], serde_json::json!(three), "{change_aware:#}");
+    for (pair, fate) in change_aware["pairs"].as_object().unwrap() {
+        let count = |key: &str| fate[key].as_u64().unwrap();
+        assert_eq!(count("kept") + count("dropped"), count("matches"), "{pair}: {fate}");
+        assert!(count("kept") > 0 && count("agreeing") > 0, "{pair}: {fate}");
+    }
+    let error = cross_error_px(&reef, &three, &vpr).expect("clicks scored");
+    println!("change-aware: median cross-visit error {error:.2} px, plain {plain_error:.2} px");
+    assert!(error < 2.0, "change-aware: median cross-session reprojection error {error} px");
 }
 
 #[test]

@@ -1,8 +1,9 @@
 """Revisit's mapping entry point: one joint COLMAP run over a Revisit store.
 
 Run by revisit-colmap's mapper driver from the project's virtual environment
-(it is embedded in the Rust binary and written next to the output). Reads the
-store (a COLMAP database), maps with pycolmap, writes every model it produced to
+(it is embedded in the Rust binary and written next to the output, with the
+module it imports, revisit_change_aware.py). Reads the store (a COLMAP
+database), maps with pycolmap (change-aware when asked), writes every model it produced to
 OUTPUT/<k> (k = 0, 1, ... by decreasing number of registered images), and
 prints one JSON line with a summary of each model on stdout. Logs go to stderr.
 """
@@ -16,6 +17,8 @@ import sys
 import threading
 import time
 from pathlib import Path
+
+from revisit_change_aware import adjustment, map_jointly, umeyama, visit_of_name
 
 
 # The smallest standard deviation a de-biased navigation prior is given, metres.
@@ -51,22 +54,8 @@ def read_priors(database: Path) -> dict:
         db.close()
 
 
-def umeyama(src, dst):
-    """The similarity (scale, rotation, translation) taking points src onto dst, least squares."""
-    import numpy as np
-
-    mean_src, mean_dst = src.mean(0), dst.mean(0)
-    a, b = src - mean_src, dst - mean_dst
-    u, singular, vt = np.linalg.svd(b.T @ a / len(src))
-    d = np.eye(3)
-    d[2, 2] = np.sign(np.linalg.det(u @ vt))
-    rotation = u @ d @ vt
-    scale = np.trace(np.diag(singular) @ d) / (a ** 2).sum(1).mean()
-    return scale, rotation, mean_dst - scale * rotation @ mean_src
-
-
 def visit_of(image):
-    return image.name.split("/", 1)[0]
+    return visit_of_name(image.name)
 
 
 def with_priors(model, priors):
@@ -134,16 +123,7 @@ def place_on_navigation(model, priors, constant, seed, threads, refine=True):
                 debiased.position_covariance = drift
             debiased.corr_data_id = prior.corr_data_id
             adjusted.append(debiased)
-        options = pycolmap.BundleAdjustmentOptions()
-        # Threads sum in a varying order: one (the default) keeps the result repeatable.
-        options.ceres.solver_options.num_threads = threads
-        config = pycolmap.BundleAdjustmentConfig()
-        for i, image in model.images.items():
-            if image.has_pose:
-                config.add_image(i)
-        for camera_id in model.cameras:
-            if camera_id in constant:
-                config.set_constant_cam_intrinsics(camera_id)
+        options, config = adjustment(model, constant, threads)
         prior_options = pycolmap.PosePriorBundleAdjustmentOptions()
         prior_options.ceres.prior_position_loss_function_type = pycolmap.LossFunctionType.CAUCHY
         prior_options.alignment_ransac.random_seed = seed
@@ -196,6 +176,9 @@ def main() -> int:
                         help="comma-separated ids of calibrated cameras, whose intrinsics are held fixed")
     parser.add_argument("--pose-priors", action="store_true",
                         help="place the models on the database's pose priors (navigation) after mapping")
+    parser.add_argument("--change-aware", action="store_true",
+                        help="map each visit alone, place the visits by their cross-visit matches' consensus "
+                             "and solve jointly on the matches that hold (incremental engine, fresh mappings)")
     args = parser.parse_args()
 
     try:
@@ -205,6 +188,8 @@ def main() -> int:
         return 3
 
     constant = {int(c) for c in args.constant_cameras.split(",") if c}
+    priors = read_priors(args.database) if args.pose_priors else {}
+    change_aware = None
     if args.output.exists():
         shutil.rmtree(args.output)
     args.output.mkdir(parents=True)
@@ -229,10 +214,17 @@ def main() -> int:
             options.ba_refine_extra_params = False
         raw = args.output / "raw"
         raw.mkdir()
-        models = pycolmap.incremental_mapping(
-            args.database, args.image_path, raw, options,
-            input_path=str(args.input_path) if args.input_path else "",
-        )
+        jointly = None
+        if args.change_aware and not args.input_path:
+            jointly = map_jointly(args.database, args.image_path, raw / "change-aware", options, priors,
+                                  args.seed, args.threads, constant)
+        if jointly:
+            models, change_aware = jointly
+        else:
+            models = pycolmap.incremental_mapping(
+                args.database, args.image_path, raw, options,
+                input_path=str(args.input_path) if args.input_path else "",
+            )
     else:
         options = pycolmap.GlobalPipelineOptions()
         if hasattr(options, "random_seed"):
@@ -253,7 +245,6 @@ def main() -> int:
     ordered = sorted(models.values(), key=lambda r: (-r.num_reg_images(), -r.num_points3D()))
     # Mapped from the images alone, then placed on the navigation: the largest model refined
     # with its priors, the others (visits not linked to it) only moved onto theirs.
-    priors = read_priors(args.database) if args.pose_priors else {}
     placements = [place_on_navigation(model, priors, constant, args.seed, args.threads, refine=(k == 0))
                   if priors else None
                   for k, model in enumerate(ordered)]
@@ -272,7 +263,7 @@ def main() -> int:
             "navigation_offsets": placed or {},
         })
     print(json.dumps({"seconds": time.monotonic() - started, "models": summary, "on_priors": on_priors,
-                      "peak_rss_mib": peak_rss_mib()}))
+                      "change_aware": change_aware, "peak_rss_mib": peak_rss_mib()}))
     return 0
 
 

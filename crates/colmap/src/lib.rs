@@ -11,8 +11,8 @@ mod mapper;
 pub mod model;
 
 pub use mapper::{
-    check_python, run_mapper, run_until_cancelled, Engine, Mapped, MapperError, MapperOptions, MapperRun, ModelSummary,
-    NavigationOffset, MIN_POSE_PRIORS, PYTHON_ENV,
+    check_python, run_mapper, run_until_cancelled, ChangeAware, CrossMatchFate, Engine, Mapped, MapperError,
+    MapperOptions, MapperRun, ModelSummary, NavigationOffset, MIN_POSE_PRIORS, PYTHON_ENV,
 };
 
 pub use model::{

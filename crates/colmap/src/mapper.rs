@@ -16,6 +16,8 @@ use std::time::Duration;
 use serde::{Deserialize, Serialize};
 
 const ENTRY_POINT: &str = include_str!("../python/revisit_mapper.py");
+/// The change-aware joint solve, a module the entry point imports (written beside it).
+const CHANGE_AWARE: &str = include_str!("../python/revisit_change_aware.py");
 
 /// Environment variable naming the Python interpreter to use.
 pub const PYTHON_ENV: &str = "REVISIT_PYTHON";
@@ -104,11 +106,28 @@ pub struct MapperOptions {
     /// registered neighbours (26 of them triangulated) joined, and 8 images of
     /// a visit matched without roll search joined 730 px off.
     pub min_pose_inliers: usize,
+    /// Change-aware mapping (incremental engine): each visit mapped alone,
+    /// the visits placed by the similarity most of their cross-visit matches
+    /// agree with (and their navigation, when given), then every match
+    /// triangulated at those placements and bundle-adjusted jointly, so that
+    /// matches on structure that changed between visits (a coral that grew)
+    /// are left out instead of bending whole visits. Maps afresh every time
+    /// (never extends). Default off: it helps where structure changed and
+    /// where wrong cross-visit pairs bend the plain solution, and is not yet
+    /// better everywhere (see the README).
+    pub change_aware: bool,
 }
 
 impl Default for MapperOptions {
     fn default() -> Self {
-        Self { engine: Engine::Incremental, seed: 0, threads: 1, min_model_size: 10, min_pose_inliers: 30 }
+        Self {
+            engine: Engine::Incremental,
+            seed: 0,
+            threads: 1,
+            min_model_size: 10,
+            min_pose_inliers: 30,
+            change_aware: false,
+        }
     }
 }
 
@@ -153,6 +172,33 @@ impl NavigationOffset {
     }
 }
 
+/// What change-aware mapping did: which visits it placed, and per visit
+/// pair what became of their cross-visit matches.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct ChangeAware {
+    /// Per visit pair (`A-B`, names sorted), its verified cross-visit matches.
+    pub pairs: BTreeMap<String, CrossMatchFate>,
+    /// Visits placed by their matches' consensus (the first is the reference).
+    pub placed: Vec<String>,
+    /// Visits that could not be mapped alone or placed (they joined, if at
+    /// all, as COLMAP's incremental mapper let them).
+    pub unplaced: Vec<String>,
+    pub seconds: f64,
+}
+
+/// What became of one visit pair's verified cross-visit matches.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+pub struct CrossMatchFate {
+    pub matches: usize,
+    /// Matches whose two visits' points agree (4 px) under the visits'
+    /// placements (0 when either visit was not placed).
+    pub agreeing: usize,
+    /// Matches the joint model holds (both keypoints in one track).
+    pub kept: usize,
+    /// The others: on structure that changed, wrong, or not triangulated.
+    pub dropped: usize,
+}
+
 /// What one mapper run produced.
 #[derive(Clone, Debug, PartialEq, Deserialize)]
 pub struct Mapped {
@@ -161,6 +207,10 @@ pub struct Mapped {
     /// The models were placed on the pose priors (metres, their frame).
     #[serde(default)]
     pub on_priors: bool,
+    /// What change-aware mapping did (`None` when it was off or could not
+    /// place two visits and the store was mapped as it is).
+    #[serde(default)]
+    pub change_aware: Option<ChangeAware>,
     /// The mapper process's peak resident memory, MiB.
     pub peak_rss_mib: Option<f64>,
 }
@@ -216,7 +266,10 @@ pub fn run_mapper(run: &MapperRun<'_>, options: &MapperOptions, cancelled: &Atom
     let MapperRun { python, database, image_root, output, extend, constant_cameras, pose_priors } = *run;
     let parent = output.parent().unwrap_or(Path::new("."));
     let script = parent.join("revisit_mapper.py");
-    std::fs::write(&script, ENTRY_POINT).map_err(|source| MapperError::Io { path: script.clone(), source })?;
+    for (name, text) in [("revisit_mapper.py", ENTRY_POINT), ("revisit_change_aware.py", CHANGE_AWARE)] {
+        let path = parent.join(name);
+        std::fs::write(&path, text).map_err(|source| MapperError::Io { path: path.clone(), source })?;
+    }
     let mut command = Command::new(python);
     command
         .arg(&script)
@@ -245,6 +298,9 @@ pub fn run_mapper(run: &MapperRun<'_>, options: &MapperOptions, cancelled: &Atom
     }
     if pose_priors {
         command.arg("--pose-priors");
+    }
+    if options.change_aware {
+        command.arg("--change-aware");
     }
     if let (Some(input), Engine::Incremental) = (extend, options.engine) {
         command.arg("--input-path").arg(input);

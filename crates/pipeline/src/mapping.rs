@@ -3,7 +3,9 @@
 
 use std::path::{Path, PathBuf};
 
-use revisit_colmap::{run_mapper, Engine, MapperError, MapperOptions, MapperRun, ModelSummary, MIN_POSE_PRIORS};
+use revisit_colmap::{
+    run_mapper, ChangeAware, Engine, MapperError, MapperOptions, MapperRun, ModelSummary, MIN_POSE_PRIORS,
+};
 use revisit_core::CameraId;
 use revisit_store::PosePrior;
 use serde::{Deserialize, Serialize};
@@ -33,6 +35,9 @@ pub struct MappingOutcome {
     /// COLMAP's peak resident memory, MiB (`None` when the models were kept).
     #[serde(default)]
     pub peak_rss_mib: Option<f64>,
+    /// What change-aware mapping did, when it ran.
+    #[serde(default)]
+    pub change_aware: Option<ChangeAware>,
 }
 
 /// Where the models of a work folder live: `WORK/model` for one model,
@@ -127,9 +132,10 @@ fn same_priors(before: &str, now: &str) -> bool {
 /// Maps the store at `database` into `work`'s model folder. If the last
 /// mapping had the same `inputs.fingerprint`, its models are kept; if it
 /// differs and the engine is incremental, the previous largest model is
-/// extended with the new images, unless pairs it was built with are now set
-/// aside (a model holds its pairs' tracks: it is rebuilt without them) or the
-/// navigation priors changed (it was refined on the old ones).
+/// extended with the new images (not with change-aware mapping, which maps
+/// afresh), unless pairs it was built with are now set aside (a model holds
+/// its pairs' tracks: it is rebuilt without them) or the navigation priors
+/// changed (it was refined on the old ones).
 /// A cancelled run leaves the previous models as they were.
 pub fn map(
     python: &Path,
@@ -151,7 +157,7 @@ pub fn map(
     let extend = before
         .as_ref()
         .and_then(|b| b.models.first())
-        .filter(|_| options.engine == Engine::Incremental)
+        .filter(|_| options.engine == Engine::Incremental && !options.change_aware)
         .filter(|_| before.as_ref().is_none_or(|b| none_withdrawn(&b.set_aside, inputs.set_aside)))
         .filter(|_| before.as_ref().is_none_or(|b| same_priors(&b.priors, inputs.priors)))
         .filter(|m| keypoints_unchanged(&m.path, database))
@@ -207,6 +213,7 @@ pub fn map(
         priors: inputs.priors.to_owned(),
         on_navigation: produced.on_priors,
         peak_rss_mib: produced.peak_rss_mib,
+        change_aware: produced.change_aware,
     };
     let record = record_path(work);
     let json = serde_json::to_string_pretty(&outcome).unwrap_or_default();

@@ -5,7 +5,7 @@
 use std::collections::BTreeMap;
 use std::path::PathBuf;
 
-use revisit_colmap::{MapperOptions, PlyColors};
+use revisit_colmap::{Engine, MapperOptions, PlyColors};
 use revisit_core::{Camera, CameraModel};
 use revisit_features::SiftOptions;
 use revisit_matching::{CrossOptions, MatchOptions, PairOptions, VerifyOptions};
@@ -302,6 +302,9 @@ impl ReconstructOptions {
         }
         if self.mapper.min_pose_inliers < 4 {
             return Err(fail("mapper.min_pose_inliers")("must be at least 4".to_owned()));
+        }
+        if self.mapper.change_aware && self.mapper.engine != Engine::Incremental {
+            return Err(fail("mapper.change_aware")("needs the incremental mapper".to_owned()));
         }
         if self.mapper.threads == 0 || self.mapper.threads < -1 {
             return Err(fail("mapper.threads")(format!(

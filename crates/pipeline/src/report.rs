@@ -5,7 +5,7 @@
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 
-use revisit_colmap::NavigationOffset;
+use revisit_colmap::{ChangeAware, NavigationOffset};
 use revisit_core::{CameraId, PairKind};
 use serde::{Deserialize, Serialize};
 
@@ -114,6 +114,10 @@ pub struct MappingReport {
     /// Per visit of the chosen model: how far its navigation sat from where the images put it.
     #[serde(default)]
     pub navigation_offsets: BTreeMap<String, NavigationOffset>,
+    /// Change-aware mapping (`--change-aware`): the visits it placed and, per visit pair, the
+    /// cross-visit matches the joint model kept and dropped.
+    #[serde(default)]
+    pub change_aware: Option<ChangeAware>,
 }
 
 /// The frame of a model's coordinates.

@@ -387,6 +387,7 @@ impl Workspace {
                 },
                 navigation_rms_m: chosen_model.and_then(|m| m.navigation_rms_m),
                 navigation_offsets: chosen_model.map(|m| m.navigation_offsets.clone()).unwrap_or_default(),
+                change_aware: outcome.change_aware.clone(),
             },
             seconds: figures.seconds,
             peak_rss_mib: figures.peak_rss_mib,

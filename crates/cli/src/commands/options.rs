@@ -179,6 +179,16 @@ pub struct OptionArgs {
     /// The COLMAP mapper.
     #[arg(long, value_enum, default_value = "incremental")]
     mapper: MapperArg,
+    /// Change-aware mapping: map each visit alone, place the visits by the
+    /// similarity most of their cross-visit matches agree with (and by their
+    /// navigation, with --nav), then triangulate every match at those
+    /// placements and bundle-adjust them jointly, so that matches on
+    /// structure that changed (a coral that grew) or wrong pairs do not bend
+    /// whole visits. report.json says, per visit pair, how many cross-visit
+    /// matches were kept and dropped. Incremental mapper only; maps afresh
+    /// on every run.
+    #[arg(long)]
+    change_aware: bool,
     /// COLMAP's threads; -1 = all cores. More threads map faster, but the
     /// poses then differ in their last digits from run to run.
     #[arg(long, default_value_t = 1, value_name = "N", allow_negative_numbers = true)]
@@ -229,6 +239,7 @@ impl OptionArgs {
             MapperArg::Global => Engine::Global,
         };
         options.mapper.threads = self.mapper_threads;
+        options.mapper.change_aware = self.change_aware;
         options.ply_colors = match self.ply_colors {
             PlyColorsArg::Rgb => PlyColors::Rgb,
             PlyColorsArg::Session => PlyColors::BySession,

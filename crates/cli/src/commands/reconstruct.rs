@@ -173,6 +173,22 @@ fn print_summary(report: &Report, work: &Path) {
         );
     }
     println!("models: {} (sizes {:?})", report.models, report.model_sizes);
+    if let Some(change) = &report.mapping.change_aware {
+        let fates: Vec<String> =
+            change.pairs.iter().map(|(pair, fate)| format!("{pair} {} of {}", fate.kept, fate.matches)).collect();
+        println!(
+            "change-aware: visits placed {}; cross-visit matches kept: {}",
+            change.placed.join(", "),
+            fates.join(", ")
+        );
+        if !change.unplaced.is_empty() {
+            println!(
+                "warning: change-aware mapping could not place {} (mapped alone too small, or too few cross-visit \
+                 matches agree): joined as COLMAP's incremental mapper let them",
+                change.unplaced.join(", ")
+            );
+        }
+    }
     if report.mapping.frame == ModelFrame::Navigation {
         let rms = report.mapping.navigation_rms_m.map_or("-".to_owned(), |m| format!("{m:.3} m"));
         println!("frame:  the navigation's (metres); cameras sit {rms} RMS from their navigation");

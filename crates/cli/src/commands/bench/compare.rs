@@ -45,21 +45,25 @@ enum Method {
         roll_search: Option<RollSearch>,
         /// Each visit's navigation (`nav/NAME.csv`) as pose priors.
         navigation: bool,
+        /// Change-aware mapping (`reconstruct --change-aware`).
+        change_aware: bool,
         about: &'static str,
     },
     /// Each visit alone, aligned afterwards.
     Posthoc(Alignment),
 }
 
-/// The joint method whose matches `revisit-nav` reuses when it ran first.
+/// The joint method whose matches `revisit-nav` and the change-aware methods reuse when it ran
+/// first.
 const REVISIT: &str = "revisit";
 
-const METHODS: [Method; 8] = [
+const METHODS: [Method; 10] = [
     Method::Joint {
         name: REVISIT,
         cross: CrossStrategy::Vpr,
         roll_search: None,
         navigation: false,
+        change_aware: false,
         about: "joint: place recognition + learned matching with roll search (Revisit's default)",
     },
     Method::Joint {
@@ -67,12 +71,33 @@ const METHODS: [Method; 8] = [
         cross: CrossStrategy::Vpr,
         roll_search: None,
         navigation: true,
+        change_aware: false,
         about: "joint, with each visit's navigation as pose priors (reconstruct --nav); the matches of \
                 revisit when it ran first (only mapping is timed then)",
     },
     Method::Joint {
+        name: "revisit-change-aware",
+        cross: CrossStrategy::Vpr,
+        roll_search: None,
+        navigation: false,
+        change_aware: true,
+        about: "joint, change-aware mapping (reconstruct --change-aware): each visit mapped alone, placed by its \
+                cross-visit matches' consensus, solved jointly on the matches that hold; the matches of revisit \
+                when it ran first",
+    },
+    Method::Joint {
+        name: "revisit-nav-change-aware",
+        cross: CrossStrategy::Vpr,
+        roll_search: None,
+        navigation: true,
+        change_aware: true,
+        about: "joint, change-aware mapping with each visit's navigation (placements gated by it, model placed on \
+                it); the matches of revisit when it ran first",
+    },
+    Method::Joint {
         name: "joint-sift",
         navigation: false,
+        change_aware: false,
         cross: CrossStrategy::Sift,
         roll_search: None,
         about: "joint: SIFT on every cross-visit pair",
@@ -80,6 +105,7 @@ const METHODS: [Method; 8] = [
     Method::Joint {
         name: "no-roll-search",
         navigation: false,
+        change_aware: false,
         cross: CrossStrategy::Vpr,
         roll_search: Some(RollSearch::Off),
         about: "joint, ablation: Revisit's default matching at roll 0 only",
@@ -87,6 +113,7 @@ const METHODS: [Method; 8] = [
     Method::Joint {
         name: "no-places",
         navigation: false,
+        change_aware: false,
         cross: CrossStrategy::LearnedCross,
         roll_search: None,
         about: "joint, ablation: the learned matcher on every cross-visit pair, no place recognition",
@@ -271,7 +298,7 @@ pub fn run(args: Args) -> Result<()> {
     for method in methods {
         println!("== {}", method.name());
         let (model, visits, mut failure, seconds) = match method {
-            Method::Joint { name, cross, roll_search, navigation, .. } => {
+            Method::Joint { name, cross, roll_search, navigation, change_aware, .. } => {
                 let navigation = match navigation {
                     false => None,
                     true => match read_navigation(&args.dataset, &sessions)? {
@@ -284,11 +311,13 @@ pub fn run(args: Args) -> Result<()> {
                     },
                 };
                 let dir = work.join(name);
-                if navigation.is_some() {
+                if navigation.is_some() || change_aware {
                     start_from_store(&work.join(REVISIT), &dir)?;
                 }
                 let started = Instant::now();
-                let model = reconstruct(&dir, options_for(cross, roll_search), &sessions, navigation.as_deref())
+                let mut options = options_for(cross, roll_search);
+                options.mapper.change_aware = change_aware;
+                let model = reconstruct(&dir, options, &sessions, navigation.as_deref())
                     .with_context(|| format!("method {name}"))?;
                 let failure = model.is_none().then(|| "COLMAP made no model".to_owned());
                 (model, Vec::new(), failure, started.elapsed().as_secs_f64())
@@ -467,9 +496,10 @@ fn cloud(model: &Reconstruction, sessions: &[String]) -> Cloud {
 }
 
 fn print_table(c: &Comparison) {
+    let width = c.methods.iter().map(|m| m.method.len()).max().unwrap_or(0).max("method".len());
     println!();
     println!(
-        "{:<16} {:>10} {:>10} {:>9} {:>8} {:>11} {:>9} {:>9}  failure",
+        "{:<width$} {:>10} {:>10} {:>9} {:>8} {:>11} {:>9} {:>9}  failure",
         "method", "median px", "mean px", "clicks", "visits", "visit scale", "rot deg", "seconds"
     );
     let px = |v: Option<f64>| v.map_or("-".to_owned(), |v| format!("{v:.2}"));
@@ -477,7 +507,7 @@ fn print_table(c: &Comparison) {
         let worst =
             |values: &BTreeMap<String, Option<f64>>| values.values().flatten().map(|v| v.abs()).max_by(f64::total_cmp);
         println!(
-            "{:<16} {:>10} {:>10} {:>9} {:>8} {:>11} {:>9} {:>9.1}  {}",
+            "{:<width$} {:>10} {:>10} {:>9} {:>8} {:>11} {:>9} {:>9.1}  {}",
             m.method,
             px(m.median_px),
             px(m.mean_px),
