@@ -208,21 +208,47 @@ fn a_synthetic_survey_reconstructs_from_bags_as_from_folders() {
     let bags = work.path().join("bags");
     let mut from_folders = vec!["reconstruct", "--cross", "sift", "--out", folders.to_str().unwrap()];
     let mut from_bags = vec!["reconstruct", "--cross", "sift", "--all-frames", "--out", bags.to_str().unwrap()];
-    let specs: Vec<(String, String)> = ["s1", "s2", "s3"]
+    // The navigation: a CSV per visit beside the folders, a topic in the bags.
+    from_bags.extend(["--nav-topic", "/nav"]);
+    let specs: Vec<[String; 3]> = ["s1", "s2", "s3"]
         .iter()
         .map(|s| {
-            (
+            [
                 format!("{s}={}", survey.join("sessions").join(s).display()),
+                format!("{s}={}", survey.join("nav").join(format!("{s}.csv")).display()),
                 format!("{s}={}", survey.join("bags").join(s).display()),
-            )
+            ]
         })
         .collect();
-    for (folder, bag) in &specs {
-        from_folders.extend(["--session", folder.as_str()]);
+    for [folder, nav, bag] in &specs {
+        from_folders.extend(["--session", folder.as_str(), "--nav", nav.as_str()]);
         from_bags.extend(["--bag", bag.as_str()]);
     }
     run_ok(&from_folders);
     run_ok(&from_bags);
+    // Each keyframe's navigation from the bag is the visit's CSV row for its image.
+    for s in ["s1", "s2", "s3"] {
+        let rows = |path: &Path| -> Vec<(String, [f64; 6])> {
+            let mut reader = csv::Reader::from_path(path).unwrap();
+            let row = |r: csv::StringRecord| (r[0].to_owned(), std::array::from_fn(|i| r[i + 1].parse().unwrap()));
+            reader.records().map(|r| row(r.unwrap())).collect()
+        };
+        let (from_bag, from_csv) =
+            (rows(&bags.join(format!("frames/{s}.nav.csv"))), rows(&survey.join(format!("nav/{s}.csv"))));
+        assert_eq!(from_bag.len(), from_csv.len(), "{s}");
+        for ((bag_image, bag_fix), (csv_image, csv_fix)) in from_bag.iter().zip(&from_csv) {
+            assert_eq!(bag_image, csv_image);
+            assert!(
+                bag_fix.iter().zip(csv_fix).all(|(a, b)| (a - b).abs() < 1e-9),
+                "{bag_image}: {bag_fix:?} against {csv_fix:?}"
+            );
+        }
+    }
+    for work in [&folders, &bags] {
+        let report = common::read_json(&work.join("report.json"));
+        assert_eq!(report["mapping"]["frame"], "navigation", "{report:#}");
+        assert!(["s1", "s2", "s3"].iter().all(|s| report["sessions"][s]["navigation"] == 12), "{report:#}");
+    }
     assert_eq!(registered(&bags), registered(&folders));
     assert!(registered(&bags).iter().all(|(_, images, registered)| images == registered && *images == 12));
     let truth = survey.join("truth");
@@ -264,5 +290,26 @@ fn keyframes_of_a_30_hz_bag_keep_a_fraction_and_every_keyframe_registers() {
     // Running again reads nothing from the bag: the keyframes are stored.
     let stamp = std::fs::metadata(out.join("frames/s1.ingested.json")).unwrap().modified().unwrap();
     run_ok(&["reconstruct", "--cross", "none", "--bag", &bag, "--out", out.to_str().unwrap()]);
+    assert_eq!(std::fs::metadata(out.join("frames/s1.ingested.json")).unwrap().modified().unwrap(), stamp);
+
+    // A navigation topic that is not one, or not there: one line naming it, nothing lost.
+    for (topic, says) in [
+        ("/camera/camera_info", "--nav-topic /camera/camera_info is sensor_msgs/msg/CameraInfo; expected"),
+        ("/usbl", "--nav-topic /usbl: no such topic in"),
+    ] {
+        let error = run_err(&[
+            "reconstruct",
+            "--cross",
+            "none",
+            "--bag",
+            &bag,
+            "--nav-topic",
+            topic,
+            "--out",
+            out.to_str().unwrap(),
+        ]);
+        assert!(one_line(&error).contains(says), "{error}");
+    }
+    assert_eq!(registered(&out), vec![("s1".to_owned(), kept, kept)]);
     assert_eq!(std::fs::metadata(out.join("frames/s1.ingested.json")).unwrap().modified().unwrap(), stamp);
 }

@@ -144,6 +144,9 @@ fn joint_reconstruction_beats_every_post_hoc_baseline_and_the_page_shows_it() {
     assert!(change_aware_px <= revisit_px, "change-aware made it worse: {change_aware_px} px against {revisit_px} px");
     // Joint SIFT links nothing across strong change: marked as failed to merge, not dropped.
     assert_eq!(row("joint-sift")["failure"], "1 of 2 visits in one model");
+    // The visit it could not link is named in its report, never dropped silently.
+    let sift_report = read_json(&report.join("work/joint-sift/report.json"));
+    assert!(!sift_report["unlinked_sessions"].as_array().unwrap().is_empty(), "{sift_report:#}");
     for baseline in ["posthoc-icp", "posthoc-fpfh", "posthoc-nav"] {
         let row = row(baseline);
         // Registration alone lands far off; navigation, as good as its fix (0.1 m), nearer.

@@ -7,9 +7,12 @@ use std::{
 };
 
 use image::{DynamicImage, ImageFormat};
+use nalgebra::{Point3, Vector3};
 use revisit_bag::{Bag, BagError, BagWriter, QosProfile, RawMessage, WrittenBag};
+use revisit_core::NavigationFix;
 use revisit_msgs::{
     builtin_interfaces::Time,
+    geometry_msgs::{PoseWithCovariance, PoseWithCovarianceStamped},
     nav_msgs::Odometry,
     revisit_msgs::SessionControl,
     sensor_msgs::{CameraInfo, CompressedImage, Image},
@@ -23,6 +26,8 @@ use crate::{
     images,
     ingest::{SessionImages, SessionSpec},
     keyframes::{KeyframeOptions, VisitEvent, VisitStream, PREVIEW_WIDTH_PX},
+    navigation::write_navigation_csv,
+    odometry::OdometryTrack,
     Cancel, PipelineError, Progress,
 };
 
@@ -390,6 +395,10 @@ pub struct IngestOptions {
     /// Split the bag into visits where frames are more than this many seconds apart.
     pub split_gap_s: Option<f64>,
     pub keyframes: KeyframeOptions,
+    /// The vehicle's georeferenced navigation (`geometry_msgs/PoseWithCovarianceStamped` or
+    /// `nav_msgs/Odometry`, one frame for every visit): each keyframe takes the position at its
+    /// stamp, and its deviations from the covariance, as the visit's navigation.
+    pub navigation_topic: Option<String>,
 }
 
 /// What [`ingest`] found and kept; stored beside the frames, so that running again with the same
@@ -414,11 +423,24 @@ pub struct IngestedVisit {
     /// Frames of the topic in this visit, and those kept as keyframes.
     pub frames: usize,
     pub keyframes: usize,
+    /// The visit's navigation CSV (`IngestOptions::navigation_topic`), when any keyframe has a
+    /// position.
+    #[serde(default)]
+    pub navigation: Option<PathBuf>,
+    /// Each keyframe's file and stamp (ns), while the bag is read.
+    #[serde(skip)]
+    stamps_ns: Vec<(String, u64)>,
 }
 
 impl Ingested {
     pub fn sessions(&self) -> Vec<SessionSpec> {
         self.visits.iter().map(|v| SessionSpec { name: v.name.clone(), dir: v.dir.clone() }).collect()
+    }
+
+    /// Each visit's navigation CSV, as NAME=CSV, for the visits that have one.
+    pub fn navigation(&self) -> Vec<SessionSpec> {
+        let with_navigation = self.visits.iter().filter_map(|v| Some((v, v.navigation.as_ref()?)));
+        with_navigation.map(|(v, csv)| SessionSpec { name: v.name.clone(), dir: csv.clone() }).collect()
     }
 }
 
@@ -459,6 +481,10 @@ pub fn ingest(
         Some(topic) => topic.clone(),
         None => only_image_topic(&bag)?,
     };
+    if let Some(navigation) = &options.navigation_topic {
+        check_navigation_topic(&bag, navigation)?;
+    }
+    let mut navigation = OdometryTrack::whole();
 
     let mut visits: Vec<IngestedVisit> = Vec::new();
     let mut stream: VisitStream<Keyframe> = VisitStream::new(&spec.name, options.split_gap_s, options.keyframes);
@@ -474,6 +500,11 @@ pub fn ingest(
             }
             Err(error) => return Err(bag_error(error)),
         };
+        if Some(&message.topic.name) == options.navigation_topic.as_ref() {
+            if let Some((stamp_ns, pose)) = navigation_pose(&message) {
+                navigation.push(stamp_ns, pose);
+            }
+        }
         if message.topic.type_name == Odometry::DEFINITION.name {
             if let Ok(odometry) = revisit_msgs::decode::<Odometry>(&message.data) {
                 let p = odometry.pose.pose.position;
@@ -496,13 +527,18 @@ pub fn ingest(
             }
         };
         let time_ns = frame.time_ns(message.log_time_ns);
-        let events = stream.frame(Keyframe { source: frame.image, origin }, time_ns, &image);
+        let events = stream.frame(Keyframe { source: frame.image, origin, time_ns }, time_ns, &image);
         apply(events, &mut visits, out, progress)?;
     }
     apply(stream.end(), &mut visits, out, progress)?;
     progress.finish();
     if visits.is_empty() {
         return Err(no_frames(&bag, &topic));
+    }
+    if options.navigation_topic.is_some() {
+        for visit in &mut visits {
+            write_visit_navigation(visit, &navigation, out)?;
+        }
     }
     let ingested = Ingested { bag: bag_path, bag_bytes, options: options.clone(), topic, visits, skipped };
     let text = serde_json::to_string_pretty(&ingested).map_err(|e| PipelineError::Bag(e.to_string()))?;
@@ -515,6 +551,7 @@ pub fn ingest(
 struct Keyframe {
     source: FrameImage,
     origin: PathBuf,
+    time_ns: u64,
 }
 
 /// Carries out a visit stream's decisions: a folder per visit, a file per keyframe.
@@ -529,7 +566,15 @@ fn apply(
             VisitEvent::Started { visit } => {
                 let dir = out.join(&visit);
                 fs::create_dir_all(&dir).map_err(|source| PipelineError::Io { path: dir.clone(), source })?;
-                visits.push(IngestedVisit { name: visit, dir, frames: 0, keyframes: 0 });
+                let (frames, keyframes) = (0, 0);
+                visits.push(IngestedVisit {
+                    name: visit,
+                    dir,
+                    frames,
+                    keyframes,
+                    navigation: None,
+                    stamps_ns: Vec::new(),
+                });
             }
             VisitEvent::Keyframe { index, frame, .. } => {
                 if let Some(visit) = visits.last_mut() {
@@ -551,8 +596,71 @@ fn apply(
 /// PNG.
 fn write_keyframe(visit: &mut IngestedVisit, index: usize, keyframe: Keyframe) -> Result<(), PipelineError> {
     let (format, bytes) = keyframe.source.into_file(&keyframe.origin)?;
-    write_atomically(&visit.dir.join(frame_file(&visit.name, index, format)), &bytes)?;
+    let file = frame_file(&visit.name, index, format);
+    write_atomically(&visit.dir.join(&file), &bytes)?;
+    visit.stamps_ns.push((file, keyframe.time_ns));
     visit.keyframes += 1;
+    Ok(())
+}
+
+/// The navigation topic's message types: a pose with its covariance, stamped.
+const NAVIGATION_TYPES: [&str; 2] = [PoseWithCovarianceStamped::DEFINITION.name, Odometry::DEFINITION.name];
+
+/// Fails, naming the topic, unless the bag has `topic` with a navigation type.
+fn check_navigation_topic(bag: &Bag, topic: &str) -> Result<(), PipelineError> {
+    let info = bag.info().map_err(bag_error)?;
+    match info.topics.iter().find(|t| t.topic.name == topic) {
+        Some(t) if NAVIGATION_TYPES.contains(&t.topic.type_name.as_str()) => Ok(()),
+        Some(t) => Err(PipelineError::Bag(format!(
+            "--nav-topic {topic} is {}; expected {}",
+            t.topic.type_name,
+            NAVIGATION_TYPES.join(" or ")
+        ))),
+        None => Err(PipelineError::Bag(format!("--nav-topic {topic}: no such topic in {}", bag.path().display()))),
+    }
+}
+
+/// A navigation message's stamp (the header's, else when it was recorded) and pose.
+fn navigation_pose(message: &RawMessage) -> Option<(u64, PoseWithCovariance)> {
+    let (header, pose) = match message.topic.type_name.as_str() {
+        name if name == Odometry::DEFINITION.name => {
+            let odometry = revisit_msgs::decode::<Odometry>(&message.data).ok()?;
+            (odometry.header, odometry.pose)
+        }
+        _ => {
+            let stamped = revisit_msgs::decode::<PoseWithCovarianceStamped>(&message.data).ok()?;
+            (stamped.header, stamped.pose)
+        }
+    };
+    let stamp_ns = u64::try_from(header.stamp.as_nanos()).ok().filter(|t| *t > 0).unwrap_or(message.log_time_ns);
+    Some((stamp_ns, pose))
+}
+
+/// Writes `visit`'s navigation CSV beside its folder (`out/VISIT.nav.csv`): each keyframe's
+/// position at its stamp, with the deviations the covariance gives (none when it is unknown,
+/// all zeros in ROS). A visit no navigation reaches gets none.
+fn write_visit_navigation(visit: &mut IngestedVisit, track: &OdometryTrack, out: &Path) -> Result<(), PipelineError> {
+    let fixes: Vec<NavigationFix> = visit
+        .stamps_ns
+        .iter()
+        .filter_map(|(file, stamp_ns)| {
+            let pose = track.at(*stamp_ns)?;
+            let p = pose.pose.position;
+            let variance_m2 = Vector3::new(pose.covariance[0], pose.covariance[7], pose.covariance[14]);
+            let sigma_m = variance_m2.iter().all(|v| *v > 0.0).then(|| variance_m2.map(f64::sqrt));
+            Some(NavigationFix {
+                image: format!("{}/{file}", visit.name),
+                position_m: Point3::new(p.x, p.y, p.z),
+                sigma_m,
+            })
+        })
+        .collect();
+    if fixes.is_empty() {
+        return Ok(());
+    }
+    let path = out.join(format!("{}.nav.csv", visit.name));
+    write_navigation_csv(&path, &fixes, &visit.name)?;
+    visit.navigation = Some(path);
     Ok(())
 }
 

@@ -69,6 +69,30 @@ pub fn read_navigation_csv(path: &Path, session: &str) -> Result<Vec<NavigationF
     parse_navigation_csv(&text, session, &path.display().to_string())
 }
 
+/// Writes session `session`'s navigation to `path` as [`read_navigation_csv`] reads it back: each
+/// fix's image as its file within the session, and the deviations when every fix has them.
+pub fn write_navigation_csv(path: &Path, fixes: &[NavigationFix], session: &str) -> Result<(), PipelineError> {
+    let io_error = |source: std::io::Error| PipelineError::Io { path: path.to_path_buf(), source };
+    let with_sigma = fixes.iter().all(|fix| fix.sigma_m.is_some());
+    let header = ["image", "x", "y", "z", "sigma_x", "sigma_y", "sigma_z"];
+    let partial = path.with_extension("partial");
+    let mut writer = csv::Writer::from_path(&partial).map_err(|e| io_error(e.into()))?;
+    writer.write_record(&header[..if with_sigma { 7 } else { 4 }]).map_err(|e| io_error(e.into()))?;
+    for fix in fixes {
+        let file = fix.image.strip_prefix(&format!("{session}/")).unwrap_or(&fix.image);
+        let mut row = vec![file.to_owned()];
+        row.extend(fix.position_m.iter().map(|v| format!("{v:?}")));
+        if let (true, Some(sigma)) = (with_sigma, fix.sigma_m) {
+            row.extend(sigma.iter().map(|v| format!("{v:?}")));
+        }
+        writer.write_record(&row).map_err(|e| io_error(e.into()))?;
+    }
+    writer.flush().map_err(io_error)?;
+    drop(writer);
+    // Written beside, then renamed: a killed run leaves no half file.
+    std::fs::rename(&partial, path).map_err(io_error)
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -83,6 +107,32 @@ mod tests {
         assert!(error.starts_with("nav/s1.csv: row 2: a standard deviation must be above 0 m"), "{error}");
         let error = parse_navigation_csv("image,x,y\n", "s1", "f.csv").unwrap_err().to_string();
         assert_eq!(error, format!("f.csv: row 1: expected the columns {NAVIGATION_COLUMNS}"));
+    }
+
+    #[test]
+    fn written_navigation_reads_back_the_same() {
+        let fix = |file: &str, x: f64, sigma_m| NavigationFix {
+            image: format!("s1/{file}"),
+            position_m: Point3::new(x, -0.1 / 3.0, 1e-17),
+            sigma_m,
+        };
+        let with_sigma = vec![
+            fix("a,b.png", 1.0, Some(Vector3::new(0.1, 0.2, 0.3))),
+            fix("c.png", 2.5, Some(Vector3::new(1.0, 1.0, 0.02))),
+        ];
+        let without = vec![fix("a.png", 1.0, Some(Vector3::new(0.1, 0.2, 0.3))), fix("c.png", 2.5, None)];
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("s1.csv");
+        for fixes in [with_sigma, without] {
+            write_navigation_csv(&path, &fixes, "s1").unwrap();
+            let text = std::fs::read_to_string(&path).unwrap();
+            let read = read_navigation_csv(&path, "s1").unwrap();
+            let expected: Vec<_> = match fixes.iter().all(|f| f.sigma_m.is_some()) {
+                true => fixes,
+                false => fixes.into_iter().map(|f| NavigationFix { sigma_m: None, ..f }).collect(),
+            };
+            assert_eq!(read, expected, "{text}");
+        }
     }
 
     #[test]

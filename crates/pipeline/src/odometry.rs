@@ -13,18 +13,30 @@ const KEPT: usize = 500;
 /// still take its pose, ns.
 const NEAREST_WITHIN_NS: u64 = 500_000_000;
 
-/// The newest odometry poses, by stamp.
-#[derive(Default)]
+/// The newest odometry poses, by stamp (a live stream's last 10 s by default, or a whole
+/// recording's with [`OdometryTrack::whole`]).
 pub struct OdometryTrack {
     poses: VecDeque<(u64, PoseWithCovariance)>,
+    kept: usize,
+}
+
+impl Default for OdometryTrack {
+    fn default() -> Self {
+        OdometryTrack { poses: VecDeque::new(), kept: KEPT }
+    }
 }
 
 impl OdometryTrack {
+    /// A track that keeps every pose (a recording read from start to end).
+    pub fn whole() -> Self {
+        OdometryTrack { poses: VecDeque::new(), kept: usize::MAX }
+    }
+
     /// Keeps a pose stamped `stamp_ns` (out of order ones are placed by stamp).
     pub fn push(&mut self, stamp_ns: u64, pose: PoseWithCovariance) {
         let at = self.poses.partition_point(|(t, _)| *t <= stamp_ns);
         self.poses.insert(at, (stamp_ns, pose));
-        if self.poses.len() > KEPT {
+        if self.poses.len() > self.kept {
             self.poses.pop_front();
         }
     }

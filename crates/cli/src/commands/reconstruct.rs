@@ -82,6 +82,14 @@ struct BagArgs {
     /// Keep every frame (no keyframe selection).
     #[arg(long, conflicts_with_all = ["keyframe_every", "keyframe_distance"])]
     all_frames: bool,
+    /// Each --bag's navigation topic (geometry_msgs/PoseWithCovarianceStamped or
+    /// nav_msgs/Odometry; positions in metres, in one Cartesian frame for every visit, as a
+    /// DVL-aided INS with a position fix gives them, not a visit's own odom frame). Each keyframe
+    /// takes the position at its stamp (interpolated) and the deviations its covariance gives,
+    /// written to WORK/frames/NAME.nav.csv and used as --nav NAME=that file; a --nav given for the
+    /// visit is used instead.
+    #[arg(long, value_name = "TOPIC")]
+    nav_topic: Option<String>,
 }
 
 impl BagArgs {
@@ -95,13 +103,15 @@ impl BagArgs {
                 distance_m: self.keyframe_distance,
             }
         };
-        IngestOptions { topic: self.topic.clone(), split_gap_s: self.split_gap, keyframes }
+        let (topic, navigation_topic) = (self.topic.clone(), self.nav_topic.clone());
+        IngestOptions { topic, split_gap_s: self.split_gap, keyframes, navigation_topic }
     }
 }
 
 /// Runs a reconstruction with progress bars; `cancel` stops it between items.
 fn reconstruct(args: &Args, cancel: &revisit_pipeline::Cancel) -> Result<Report> {
     let mut specs = args.sessions.clone();
+    let mut navigation = args.navigation.clone();
     let frames = args.out.join("frames");
     for bag in &args.bags {
         ingest::check_specs(std::slice::from_ref(bag)).context("--bag")?;
@@ -119,6 +129,13 @@ fn reconstruct(args: &Args, cancel: &revisit_pipeline::Cancel) -> Result<Report>
             );
         }
         specs.extend(ingested.sessions());
+        if let Some(topic) = &args.bag_options.nav_topic {
+            for visit in ingested.visits.iter().filter(|v| v.navigation.is_none()) {
+                tracing::warn!("--nav-topic {topic}: no position near any keyframe of {}", visit.name);
+            }
+            let given = |visit: &SessionSpec| args.navigation.iter().any(|n| n.name == visit.name);
+            navigation.extend(ingested.navigation().into_iter().filter(|visit| !given(visit)));
+        }
     }
     ingest::check_specs(&specs).context("--session")?;
     let sessions = specs
@@ -131,7 +148,7 @@ fn reconstruct(args: &Args, cancel: &revisit_pipeline::Cancel) -> Result<Report>
         let name = session.name.clone();
         workspace.add_session(session).with_context(|| format!("--session {name}"))?;
     }
-    for nav in &args.navigation {
+    for nav in &navigation {
         let context = || format!("--nav {}={}", nav.name, nav.dir.display());
         let fixes = read_navigation_csv(&nav.dir, &nav.name).with_context(context)?;
         let count = workspace.add_navigation(&nav.name, &fixes).with_context(context)?;

@@ -67,7 +67,10 @@ pub struct Args {
     /// Also write each visit as a ROS 2 bag, bags/NAME/ (rosbag2 mcap): the images as
     /// sensor_msgs/CompressedImage PNG on /camera/image_raw/compressed, the true calibration on
     /// /camera/camera_info, dead-reckoned navigation (truth plus scale, heading and random-walk
-    /// drift) as nav_msgs/Odometry on /odom, and revisit_msgs/SessionControl on /revisit/session.
+    /// drift) as nav_msgs/Odometry on /odom, the georeferenced navigation of nav/NAME.csv (the
+    /// same track with its position fix, in the world frame, with its covariance) as
+    /// geometry_msgs/PoseWithCovarianceStamped on /nav, and revisit_msgs/SessionControl on
+    /// /revisit/session.
     #[arg(long)]
     bag: bool,
     /// Frames per second of the bags' timeline.
@@ -180,7 +183,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     Ok(())
 }
 
-/// One visit as a rosbag2 bag: images, camera info, odometry and visit markers.
+/// One visit as a rosbag2 bag: images, camera info, odometry, navigation and visit markers.
 fn write_bag(
     survey: &Survey,
     s: usize,
@@ -191,7 +194,7 @@ fn write_bag(
     use revisit_bag::{BagWriter, QosProfile};
     use revisit_msgs::{
         builtin_interfaces::Time,
-        geometry_msgs::{Point, Pose, PoseWithCovariance, Quaternion},
+        geometry_msgs::{Point, Pose, PoseWithCovariance, PoseWithCovarianceStamped, Quaternion},
         nav_msgs::Odometry,
         revisit_msgs::SessionControl,
         sensor_msgs::{CameraInfo, CompressedImage},
@@ -208,6 +211,7 @@ fn write_bag(
     let images = bag.add_topic::<CompressedImage>("/camera/image_raw/compressed", QosProfile::SENSOR_DATA)?;
     let infos = bag.add_topic::<CameraInfo>("/camera/camera_info", QosProfile::SENSOR_DATA)?;
     let odometry = bag.add_topic::<Odometry>("/odom", QosProfile::SENSOR_DATA)?;
+    let georeferenced = bag.add_topic::<PoseWithCovarianceStamped>("/nav", QosProfile::SENSOR_DATA)?;
     let control = bag.add_topic::<SessionControl>(revisit_pipeline::bags::SESSION_TOPIC, QosProfile::LATCHED)?;
 
     let start_ns = revisit_pipeline::bags::PACK_START_NS + s as u64 * 86_400_000_000_000;
@@ -235,8 +239,8 @@ fn write_bag(
         p: [fx, 0.0, cx - 0.5, 0.0, 0.0, fy, cy - 0.5, 0.0, 0.0, 0.0, 1.0, 0.0],
         ..CameraInfo::default()
     };
-    let navigation = survey.navigation(s);
-    for (i, (image, nav)) in session.images.iter().zip(&navigation).enumerate() {
+    let (navigation, fixes) = (survey.navigation(s), survey.navigation_fixes(s));
+    for (i, ((image, nav), fix)) in session.images.iter().zip(&navigation).zip(&fixes).enumerate() {
         let t = time_ns(i);
         let path = sessions_dir.join(&session.name).join(&image.file);
         let data = std::fs::read(&path).with_context(|| format!("reading {}", path.display()))?;
@@ -256,6 +260,18 @@ fn write_bag(
             t,
             &Odometry { header: header(t, "odom"), child_frame_id: "camera".into(), pose, ..Odometry::default() },
         )?;
+        // The fix's position with its variances; the attitude as the INS has it, its covariance
+        // not given (zeros).
+        let (p, sigma) = (fix.position_m, fix.sigma_m);
+        let mut covariance = [0.0; 36];
+        for (k, s) in sigma.iter().enumerate() {
+            covariance[k * 7] = s * s;
+        }
+        let pose = PoseWithCovariance {
+            pose: Pose { position: Point { x: p.x, y: p.y, z: p.z }, orientation: Quaternion { x, y, z, w } },
+            covariance,
+        };
+        bag.write(georeferenced, t, &PoseWithCovarianceStamped { header: header(t, "map"), pose })?;
     }
     let end = time_ns(session.images.len());
     bag.write(control, end, &marker(SessionControl::END, end))?;
