@@ -9,6 +9,8 @@
 use std::collections::{BTreeMap, BTreeSet};
 use std::path::Path;
 
+use nalgebra::Point3;
+
 use revisit_core::{pair_id, ImageId, Keypoint, LearnedFeatures, PairKind, Roll};
 use revisit_features::learned::LearnedExtractor;
 use revisit_matching::consistency::{self, CheckedPair, Predictor, Verdict};
@@ -241,15 +243,50 @@ pub struct LearnedPair {
     pub rank: usize,
 }
 
+/// Where the vehicle's navigation puts each image, and how near two images must be to show the
+/// same place.
+#[derive(Clone, Debug, Default)]
+pub struct Nearby {
+    /// Each image's camera centre in the navigation frame, metres (images without navigation
+    /// are absent).
+    pub positions_m: BTreeMap<ImageId, Point3<f64>>,
+    pub radius_m: f64,
+}
+
+impl Nearby {
+    /// Whether `a` and `b` may show the same place: within the radius, or not both navigated.
+    fn allows(&self, a: ImageId, b: ImageId) -> bool {
+        match (self.positions_m.get(&a), self.positions_m.get(&b)) {
+            (Some(p), Some(q)) => (p - q).norm() <= self.radius_m,
+            _ => true,
+        }
+    }
+
+    /// The `k` images of `among` nearest to `image` within the radius, nearest first (ties by id).
+    fn nearest(&self, image: ImageId, among: &[ImageId], k: usize) -> Vec<ImageId> {
+        let Some(p) = self.positions_m.get(&image) else { return Vec::new() };
+        let mut near: Vec<(f64, ImageId)> = among
+            .iter()
+            .filter_map(|a| Some(((self.positions_m.get(a)? - p).norm(), *a)))
+            .filter(|(distance_m, _)| *distance_m <= self.radius_m)
+            .collect();
+        near.sort_by(|x, y| x.0.total_cmp(&y.0).then(x.1.cmp(&y.1)));
+        near.into_iter().take(k).map(|(_, a)| a).collect()
+    }
+}
+
 /// The pairs the learned matcher sees under `strategy`: every pair
 /// (`learned-all`), every cross-visit pair (`learned-cross`), or each later
 /// image's place-recognition candidates among earlier visits (`vpr`, for
-/// which `places` must hold every image's descriptors).
+/// which `places` must hold every image's descriptors). With navigation
+/// (`nearby`), `vpr` drops the candidates farther than its radius and adds each
+/// later image's `top_k` nearest earlier images within it.
 pub fn plan_learned_pairs(
     strategy: CrossStrategy,
     sessions: &[Session],
     places: Option<&Places>,
     candidates: &CandidateOptions,
+    nearby: Option<&Nearby>,
 ) -> Vec<LearnedPair> {
     let mut pairs = BTreeSet::new();
     let ids: Vec<Vec<ImageId>> = sessions.iter().map(|s| s.images.iter().map(|i| i.id).collect()).collect();
@@ -270,9 +307,21 @@ pub fn plan_learned_pairs(
             }
             CrossStrategy::Vpr => {
                 let Some(places) = places else { continue };
+                let allows = |a, b| nearby.is_none_or(|nearby| nearby.allows(a, b));
                 for (b, found) in place_candidates(sessions, places, candidates, v) {
-                    let ranked = found.into_iter().enumerate();
+                    let ranked = found.into_iter().enumerate().filter(|(_, (a, _))| allows(*a, b));
                     pairs.extend(ranked.map(|(rank, (a, _))| LearnedPair { rank, ..pair(a, b, PairKind::Cross) }));
+                }
+                for (b, nearby) in later.iter().filter_map(|b| Some((*b, nearby?))) {
+                    for a in nearby.nearest(b, &earlier, candidates.top_k) {
+                        let (first, last) = (
+                            pair(a, b, PairKind::Cross),
+                            LearnedPair { rank: usize::MAX, ..pair(a, b, PairKind::Cross) },
+                        );
+                        if pairs.range(first..=last).next().is_none() {
+                            pairs.insert(first);
+                        }
+                    }
                 }
             }
         }
@@ -603,4 +652,54 @@ pub fn check_consistency(
         store.restore_set_aside(id)?;
     }
     Ok(counts)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::workspace::SessionImage;
+
+    fn session(name: &str, visit: usize, ids: &[ImageId]) -> Session {
+        let image = |id: &ImageId| SessionImage {
+            name: revisit_core::ImageName::new(name, &format!("{id}.png")).unwrap(),
+            id: *id,
+            camera: "cam".into(),
+            path: format!("{id}.png").into(),
+        };
+        let images = ids.iter().map(image).collect();
+        Session {
+            name: name.into(),
+            visit,
+            dir: name.into(),
+            images,
+            cameras: BTreeMap::new(),
+            calibrated: BTreeSet::new(),
+        }
+    }
+
+    #[test]
+    fn navigation_drops_far_candidates_and_adds_near_images() {
+        let sessions = [session("s1", 0, &[1, 2, 3]), session("s2", 1, &[4, 5])];
+        // Place recognition sends image 4 to 3 then 1, image 5 to 2 then 3.
+        let mut descriptors = BTreeMap::new();
+        for (id, d) in [(1, [1.0, 0.0]), (2, [0.0, 1.0]), (3, [0.8, 0.6])] {
+            descriptors.insert((id, 0), d.to_vec());
+        }
+        for roll in Roll::ALL {
+            descriptors.insert((4, roll.degrees()), vec![0.9, 0.436]);
+            descriptors.insert((5, roll.degrees()), vec![0.0, 1.0]);
+        }
+        let places = Places { name: "test".into(), descriptors, counts: StageCounts::default() };
+        let candidates = CandidateOptions { top_k: 2, max_distance: None };
+        let plan = |nearby: Option<&Nearby>| -> Vec<(ImageId, ImageId, usize)> {
+            let pairs = plan_learned_pairs(CrossStrategy::Vpr, &sessions, Some(&places), &candidates, nearby);
+            pairs.into_iter().map(|p| (p.image_id1, p.image_id2, p.rank)).collect()
+        };
+        assert_eq!(plan(None), [(1, 4, 1), (2, 5, 0), (3, 4, 0), (3, 5, 1)]);
+        // Along a line: image 4 near 1 and 2, image 5 far from every earlier image.
+        let x = [(1, 0.0), (2, 0.9), (3, 1.9), (4, 0.1), (5, 5.0)];
+        let positions_m = x.into_iter().map(|(id, x)| (id, Point3::new(x, 0.0, -10.0))).collect();
+        let nearby = Nearby { positions_m, radius_m: 1.0 };
+        assert_eq!(plan(Some(&nearby)), [(1, 4, 1), (2, 4, 0)]);
+    }
 }

@@ -140,6 +140,11 @@ pub struct PlaceOptions {
     /// Each image of a later visit is paired with its `top_k` nearest images
     /// of earlier visits. Default 5.
     pub candidates: CandidateOptions,
+    /// With navigation priors: images whose navigated camera centres lie farther apart than
+    /// this (metres) are never a candidate pair, and each image of a later visit is also paired
+    /// with its `top_k` nearest images of earlier visits within it. `None`: navigation picks
+    /// no pairs.
+    pub navigation_radius_m: Option<f64>,
 }
 
 /// A calibrated camera, `MODEL:P1,P2,...` in COLMAP's parameter order.
@@ -285,6 +290,13 @@ impl ReconstructOptions {
         self.verify.check().map_err(|e| fail("verify")(e.to_string()))?;
         self.learned_matching.check().map_err(|e| fail("learned_matching")(e.to_string()))?;
         self.places.candidates.check().map_err(fail("places.candidates"))?;
+        if let Some(radius_m) = self.places.navigation_radius_m {
+            if !(radius_m.is_finite() && radius_m > 0.0) {
+                return Err(fail("places.navigation_radius_m")(format!(
+                    "{radius_m} is not a positive number of metres"
+                )));
+            }
+        }
         if let PlaceSource::Vlad { clusters } = self.places.source {
             if !(2..=4096).contains(&clusters) {
                 return Err(fail("places.source")(format!(

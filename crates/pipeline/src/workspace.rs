@@ -491,7 +491,15 @@ impl Workspace {
         cancel: &Cancel,
     ) -> Result<StageCounts, PipelineError> {
         let options = &self.options;
-        let pairs = cross::plan_learned_pairs(options.cross, &self.sessions, places, &options.places.candidates);
+        let nearby = match options.places.navigation_radius_m {
+            Some(radius_m) => {
+                let positions_m = self.store.pose_priors()?.into_iter().map(|p| (p.image_id, p.position_m)).collect();
+                Some(cross::Nearby { positions_m, radius_m })
+            }
+            None => None,
+        };
+        let candidates = &options.places.candidates;
+        let pairs = cross::plan_learned_pairs(options.cross, &self.sessions, places, candidates, nearby.as_ref());
         let (Learned { method, extractor, matcher }, mut pool) = (learned, Vec::new());
         let dim = extractor.descriptor_dim();
         let open = |runtime: &_, models: &_| learned::open_matcher(runtime, models, *method, dim);

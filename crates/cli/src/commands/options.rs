@@ -103,6 +103,14 @@ pub struct OptionArgs {
     /// normalised global descriptors, 0..2).
     #[arg(long, value_name = "D")]
     vpr_max_distance: Option<f32>,
+    /// With navigation (--nav, --nav-topic): images whose navigated positions lie more than
+    /// METRES apart are never a cross-visit pair (place recognition's candidates among them are
+    /// dropped), and each image of a later visit is also paired with its --vpr-top-k nearest
+    /// images of earlier visits within METRES. Set it to what the camera sees across plus the
+    /// navigation's uncertainty (e.g. 2 x altitude x tan(half the field of view) + 3 sigma).
+    /// Default: navigation picks no pairs.
+    #[arg(long, value_name = "METRES")]
+    nav_radius: Option<f64>,
     /// Place recognition: a global-descriptor ONNX model (RGB image [1, 3, H, W]
     /// in 0..1 -> [1, D]), e.g. MegaLoc. Default: built-in VLAD over the
     /// learned features, with a vocabulary learned from the survey.
@@ -229,6 +237,7 @@ impl OptionArgs {
         options.learned_workers = self.learned_workers;
         options.places.candidates.top_k = self.vpr_top_k;
         options.places.candidates.max_distance = self.vpr_max_distance;
+        options.places.navigation_radius_m = self.nav_radius;
         if let Some(model) = &self.vpr_model {
             options.places.source = PlaceSource::Onnx(model.clone());
         }
