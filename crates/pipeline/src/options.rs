@@ -351,6 +351,9 @@ mod tests {
         options.places.candidates.top_k = 0;
         assert!(options.check().unwrap_err().to_string().contains("places.candidates"));
         let mut options = ReconstructOptions::default();
+        options.places.navigation_radius_m = Some(-1.0);
+        assert!(options.check().unwrap_err().to_string().contains("places.navigation_radius_m"));
+        let mut options = ReconstructOptions::default();
         options.learned_matching.roll_margin = f32::NAN;
         assert!(options.check().unwrap_err().to_string().contains("learned_matching"));
     }

@@ -15,7 +15,7 @@ pub enum Bench {
     /// Revisit's whole reconstruction beside pycolmap's own pipeline (SIFT,
     /// exhaustive or sequential matching, incremental mapping) on the same
     /// sessions: seconds per stage, images registered, peak memory, time ratio.
-    Colmap(colmap::Args),
+    Colmap(Box<colmap::Args>),
     /// Revisit's SIFT against OpenCV's on the same real images: time per image
     /// at equal feature count and verified inliers on overlapping pairs.
     Sift(sift::Args),
@@ -39,7 +39,7 @@ pub enum Bench {
 pub fn run(bench: Bench) -> anyhow::Result<()> {
     match bench {
         Bench::Bag(args) => bag::run(args),
-        Bench::Colmap(args) => colmap::run(args),
+        Bench::Colmap(args) => colmap::run(*args),
         Bench::Compare(args) => compare::run(args),
         Bench::Sift(args) => sift::run(args),
         Bench::Matching(args) => matching::run(args),

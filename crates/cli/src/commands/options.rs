@@ -108,7 +108,7 @@ pub struct OptionArgs {
     /// dropped), and each image of a later visit is also paired with its --vpr-top-k nearest
     /// images of earlier visits within METRES. Set it to what the camera sees across plus the
     /// navigation's uncertainty (e.g. 2 x altitude x tan(half the field of view) + 3 sigma).
-    /// Default: navigation picks no pairs.
+    /// Pairs the store already holds stay. Default: navigation picks no pairs.
     #[arg(long, value_name = "METRES")]
     nav_radius: Option<f64>,
     /// Place recognition: a global-descriptor ONNX model (RGB image [1, 3, H, W]
