@@ -203,7 +203,7 @@ fn median_error_px(work: &Path, truth: &Path) -> f64 {
 fn a_synthetic_survey_reconstructs_from_bags_as_from_folders() {
     let work = tempfile::tempdir().unwrap();
     let survey = work.path().join("survey");
-    synth(&survey, &["--sessions", "3", "--images-per-session", "12", "--change", "mild"]);
+    synth(&survey, &["--sessions", "3", "--images-per-session", "12", "--change", "mild", "--bag-navigation"]);
     let folders = work.path().join("folders");
     let bags = work.path().join("bags");
     let mut from_folders = vec!["reconstruct", "--cross", "sift", "--out", folders.to_str().unwrap()];

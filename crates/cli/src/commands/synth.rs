@@ -67,15 +67,17 @@ pub struct Args {
     /// Also write each visit as a ROS 2 bag, bags/NAME/ (rosbag2 mcap): the images as
     /// sensor_msgs/CompressedImage PNG on /camera/image_raw/compressed, the true calibration on
     /// /camera/camera_info, dead-reckoned navigation (truth plus scale, heading and random-walk
-    /// drift) as nav_msgs/Odometry on /odom, the georeferenced navigation of nav/NAME.csv (the
-    /// same track with its position fix, in the world frame, with its covariance) as
-    /// geometry_msgs/PoseWithCovarianceStamped on /nav, and revisit_msgs/SessionControl on
-    /// /revisit/session.
+    /// drift) as nav_msgs/Odometry on /odom, and revisit_msgs/SessionControl on /revisit/session.
     #[arg(long)]
     bag: bool,
     /// Frames per second of the bags' timeline.
     #[arg(long, default_value_t = 1.0, requires = "bag")]
     bag_rate: f64,
+    /// Also write the georeferenced navigation of nav/NAME.csv into the bags (the same track with
+    /// its position fix, in the world frame, with its covariance) as
+    /// geometry_msgs/PoseWithCovarianceStamped on /nav (`reconstruct --nav-topic /nav`).
+    #[arg(long, requires = "bag")]
+    bag_navigation: bool,
 }
 
 fn parse_change(text: &str) -> Result<ChangeGrade, String> {
@@ -169,7 +171,8 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             "--bag-rate must be a positive number of frames per second"
         );
         for s in 0..survey.sessions().len() {
-            let written = write_bag(&survey, s, &sessions_dir, &args.out.join("bags"), args.bag_rate)?;
+            let written =
+                write_bag(&survey, s, &sessions_dir, &args.out.join("bags"), args.bag_rate, args.bag_navigation)?;
             info!("wrote {} messages to {}", written.messages, written.dir.display());
         }
     }
@@ -190,6 +193,7 @@ fn write_bag(
     sessions_dir: &Path,
     bags_dir: &Path,
     rate_hz: f64,
+    with_navigation: bool,
 ) -> anyhow::Result<revisit_bag::WrittenBag> {
     use revisit_bag::{BagWriter, QosProfile};
     use revisit_msgs::{
@@ -211,7 +215,10 @@ fn write_bag(
     let images = bag.add_topic::<CompressedImage>("/camera/image_raw/compressed", QosProfile::SENSOR_DATA)?;
     let infos = bag.add_topic::<CameraInfo>("/camera/camera_info", QosProfile::SENSOR_DATA)?;
     let odometry = bag.add_topic::<Odometry>("/odom", QosProfile::SENSOR_DATA)?;
-    let georeferenced = bag.add_topic::<PoseWithCovarianceStamped>("/nav", QosProfile::SENSOR_DATA)?;
+    let georeferenced = match with_navigation {
+        true => Some(bag.add_topic::<PoseWithCovarianceStamped>("/nav", QosProfile::SENSOR_DATA)?),
+        false => None,
+    };
     let control = bag.add_topic::<SessionControl>(revisit_pipeline::bags::SESSION_TOPIC, QosProfile::LATCHED)?;
 
     let start_ns = revisit_pipeline::bags::PACK_START_NS + s as u64 * 86_400_000_000_000;
@@ -271,7 +278,9 @@ fn write_bag(
             pose: Pose { position: Point { x: p.x, y: p.y, z: p.z }, orientation: Quaternion { x, y, z, w } },
             covariance,
         };
-        bag.write(georeferenced, t, &PoseWithCovarianceStamped { header: header(t, "map"), pose })?;
+        if let Some(georeferenced) = georeferenced {
+            bag.write(georeferenced, t, &PoseWithCovarianceStamped { header: header(t, "map"), pose })?;
+        }
     }
     let end = time_ns(session.images.len());
     bag.write(control, end, &marker(SessionControl::END, end))?;
