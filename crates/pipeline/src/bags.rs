@@ -77,10 +77,7 @@ impl Frame {
 
     /// When it was taken: the header's stamp, or the log time when the stamp is zero.
     pub fn time_ns(&self, log_time_ns: u64) -> u64 {
-        match self.stamp.as_nanos() {
-            0 => log_time_ns,
-            stamp => u64::try_from(stamp).unwrap_or(log_time_ns),
-        }
+        stamp_or_log_ns(self.stamp, log_time_ns)
     }
 
     pub fn decode(&self, origin: &Path) -> Result<DynamicImage, PipelineError> {
@@ -566,15 +563,8 @@ fn apply(
             VisitEvent::Started { visit } => {
                 let dir = out.join(&visit);
                 fs::create_dir_all(&dir).map_err(|source| PipelineError::Io { path: dir.clone(), source })?;
-                let (frames, keyframes) = (0, 0);
-                visits.push(IngestedVisit {
-                    name: visit,
-                    dir,
-                    frames,
-                    keyframes,
-                    navigation: None,
-                    stamps_ns: Vec::new(),
-                });
+                let (navigation, stamps_ns) = (None, Vec::new());
+                visits.push(IngestedVisit { name: visit, dir, frames: 0, keyframes: 0, navigation, stamps_ns });
             }
             VisitEvent::Keyframe { index, frame, .. } => {
                 if let Some(visit) = visits.last_mut() {
@@ -632,8 +622,15 @@ fn navigation_pose(message: &RawMessage) -> Option<(u64, PoseWithCovariance)> {
             (stamped.header, stamped.pose)
         }
     };
-    let stamp_ns = u64::try_from(header.stamp.as_nanos()).ok().filter(|t| *t > 0).unwrap_or(message.log_time_ns);
-    Some((stamp_ns, pose))
+    Some((stamp_or_log_ns(header.stamp, message.log_time_ns), pose))
+}
+
+/// A message's time: its header's stamp, or when it was recorded if it has none.
+fn stamp_or_log_ns(stamp: Time, log_time_ns: u64) -> u64 {
+    match stamp.as_nanos() {
+        0 => log_time_ns,
+        stamp => u64::try_from(stamp).unwrap_or(log_time_ns),
+    }
 }
 
 /// Writes `visit`'s navigation CSV beside its folder (`out/VISIT.nav.csv`): each keyframe's
