@@ -86,12 +86,19 @@ fn strong_change_links_with_place_recognition_and_roll_search() {
     let far_off = errors.iter().filter(|e| **e > FAR_OFF_PAIR_ERROR_PX).count();
     assert!(6 * far_off < errors.len(), "{far_off} of {} verified pairs far off", errors.len());
 
-    // The pairs the consistency check finds at odds with their roll or with their visits' other
-    // pairs are far-off ones; asked to, it maps without them (nothing else is redone).
-    let report = reconstruct(&reef, &three, &vpr, &["--set-aside-inconsistent"]);
+    // The pairs the consistency check finds at odds with their roll, with their visits' other
+    // pairs or, given the visits' navigation, with where it puts the cameras are far-off ones;
+    // asked to, it maps without them (nothing else is redone).
+    let nav: Vec<String> = three
+        .iter()
+        .flat_map(|s| ["--nav".into(), format!("{s}={}", reef.join(format!("nav/{s}.csv")).display())])
+        .collect();
+    let nav: Vec<&str> = nav.iter().map(String::as_str).collect();
+    let report = reconstruct(&reef, &three, &vpr, &[&["--set-aside-inconsistent"], &nav[..]].concat());
     let consistency = &report["cross"]["consistency"];
     let count = |key: &str| consistency[key].as_u64().unwrap();
-    assert_eq!(count("set_aside"), count("roll_disagrees") + count("off_consensus"), "{consistency}");
+    let inconsistent = count("roll_disagrees") + count("off_consensus") + count("off_navigation");
+    assert_eq!(count("set_aside"), inconsistent, "{consistency}");
     let store = revisit_store::Store::open_read_only(&vpr.join("database.db")).unwrap();
     let set_aside: Vec<u64> = store.set_aside_pairs().unwrap().into_keys().collect();
     drop(store);
@@ -111,8 +118,11 @@ fn strong_change_links_with_place_recognition_and_roll_search() {
     let plain_error = cross_error_px(&reef, &three, &vpr).expect("clicks scored");
     let registered = |report: &serde_json::Value| three.map(|s| report["sessions"][s]["registered"].as_u64().unwrap());
     let plain_registered = registered(&report);
-    let report = reconstruct(&reef, &three, &vpr, &["--change-aware"]);
+    let report = reconstruct(&reef, &three, &vpr, &[&["--change-aware"], &nav[..]].concat());
     assert_eq!(report["cross"]["learned_matching"]["done"], 0, "{report:#}");
+    // Without being asked, only the pairs off the navigation stay aside.
+    let consistency = &report["cross"]["consistency"];
+    assert_eq!(consistency["set_aside"], consistency["off_navigation"], "{consistency}");
     assert_eq!(report["mapping"]["extended"], false, "{report:#}");
     assert_eq!(report["models"], 1, "{report:#}");
     // The image the roll prediction leaves without a link (above) stays out; every other joins.

@@ -12,7 +12,8 @@
 //! heading relative to the visit), so each cross-visit pair between two visits
 //! implies one heading offset between them, and the true pairs agree on it.
 //!
-//! Two rules, both on the turn of the pair's inlier matches:
+//! Two rules on the turn of the pair's inlier matches, and one on where they
+//! put the other image:
 //! 1. **The roll agrees**: a learned pair matched at roll `r` must turn by
 //!    `-r` within 45 degrees (else another roll was the nearer one, and the
 //!    matches do not show what the roll search chose).
@@ -20,6 +21,17 @@
 //!    offsets implied by their pairs are voted (weighted by inliers); when one
 //!    offset holds more than half of the weight and at least two pairs, a pair
 //!    more than `tolerance_deg` away from it is off the consensus.
+//! 3. **The navigation agrees** (when both images have a navigated position):
+//!    a downward camera's centre sits above the ground its image centre shows,
+//!    so the pair's matches say where each image sees the other's centre
+//!    ([`Shift`]). Each visit's pairs calibrate how navigation maps to its
+//!    pixels (metres per pixel, each image's heading in the navigation frame,
+//!    and the frame's handedness: ENU and NED are mirror images), and a
+//!    cross-visit pair whose matches put the other camera farther from where
+//!    navigation puts it than 3 standard deviations of the two positions (at
+//!    least 64 pixels' worth) is off the navigation. Wrong pairs of a
+//!    planar seabed pass rules 1 and 2 when they happen to turn right; they
+//!    rarely also move right.
 //!
 //! Pure: pairs in, verdicts out; the pipeline sets the rejected pairs aside
 //! in the store.
@@ -30,6 +42,10 @@ use revisit_core::{ImageId, PairKind, Roll};
 
 /// How far (degrees) a pair's implied offset may be from its visits' consensus, by default.
 pub const DEFAULT_CONSISTENCY_TOLERANCE_DEG: f64 = 30.0;
+
+/// How far a pair may put the other camera from its navigated position, by
+/// default, in standard deviations of the two positions.
+pub const DEFAULT_NAVIGATION_TOLERANCE_SIGMAS: f64 = 3.0;
 
 /// The largest turn (degrees) away from the matched roll: half the spacing of the rolls.
 const ROLL_TOLERANCE_DEG: f64 = 45.0;
@@ -79,6 +95,77 @@ pub fn turn(points1: &[[f64; 2]], points2: &[[f64; 2]]) -> Option<Turn> {
     Some(Turn { deg, agreement: agreeing / changes.len() as f64 })
 }
 
+/// Where a pair's matches put each image's centre in the other image,
+/// pixels from that image's own centre: image 2's centre seen in image 1
+/// (`other_in_1`) and image 1's centre seen in image 2 (`other_in_2`).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Shift {
+    pub other_in_1: [f64; 2],
+    pub other_in_2: [f64; 2],
+}
+
+/// The [`Shift`] of matched points turned by `turn_deg` (as [`turn`] finds
+/// it): the similarity from image 1 to image 2 with that turn, its scale the
+/// median length ratio of the point pairs that agree with the turn and its
+/// move the per-axis median of the matches' residual moves (robust to the
+/// wrong matches a verified pair carries). `centre1` and `centre2` are the
+/// images' centres. `None` with fewer than 8 agreeing point pairs.
+pub fn shift(
+    points1: &[[f64; 2]],
+    points2: &[[f64; 2]],
+    turn_deg: f64,
+    centre1: [f64; 2],
+    centre2: [f64; 2],
+) -> Option<Shift> {
+    let n = points1.len().min(points2.len());
+    let mut ratios = Vec::new();
+    for k in 0..n {
+        for step in [1, 3, 7] {
+            let j = (k + step) % n;
+            let d1 = [points1[j][0] - points1[k][0], points1[j][1] - points1[k][1]];
+            let d2 = [points2[j][0] - points2[k][0], points2[j][1] - points2[k][1]];
+            let (l1, l2) = (d1[0].hypot(d1[1]), d2[0].hypot(d2[1]));
+            if j == k || l1 < MIN_SPAN_PX || l2 < MIN_SPAN_PX {
+                continue;
+            }
+            let change = d2[1].atan2(d2[0]).to_degrees() - d1[1].atan2(d1[0]).to_degrees();
+            if angle_between(change, turn_deg) <= AGREEMENT_DEG {
+                ratios.push(l2 / l1);
+            }
+        }
+    }
+    if ratios.len() < 8 {
+        return None;
+    }
+    let scale = median(ratios);
+    let (sin, cos) = turn_deg.to_radians().sin_cos();
+    let similar = |p: [f64; 2]| [scale * (cos * p[0] - sin * p[1]), scale * (sin * p[0] + cos * p[1])];
+    let moved: Vec<[f64; 2]> = (0..n)
+        .map(|k| {
+            let q = similar(points1[k]);
+            [points2[k][0] - q[0], points2[k][1] - q[1]]
+        })
+        .collect();
+    let t = [median(moved.iter().map(|m| m[0]).collect()), median(moved.iter().map(|m| m[1]).collect())];
+    // Image 1's centre in image 2, and image 2's centre taken back into image 1.
+    let seen = similar(centre1);
+    let back = [centre2[0] - t[0], centre2[1] - t[1]];
+    let unturned = [(cos * back[0] + sin * back[1]) / scale, (-sin * back[0] + cos * back[1]) / scale];
+    Some(Shift {
+        other_in_1: [unturned[0] - centre1[0], unturned[1] - centre1[1]],
+        other_in_2: [seen[0] + t[0] - centre2[0], seen[1] + t[1] - centre2[1]],
+    })
+}
+
+fn median(mut values: Vec<f64>) -> f64 {
+    values.sort_by(f64::total_cmp);
+    let n = values.len();
+    match n % 2 {
+        1 => values[n / 2],
+        _ => 0.5 * (values[n / 2 - 1] + values[n / 2]),
+    }
+}
+
 /// A verified pair as the check sees it.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct CheckedPair {
@@ -87,6 +174,8 @@ pub struct CheckedPair {
     pub kind: PairKind,
     /// From image 1 to image 2.
     pub turn: Turn,
+    /// Where the matches put each image's centre in the other.
+    pub shift: Option<Shift>,
     /// Verified inliers: the pair's weight in the vote.
     pub inliers: usize,
     /// For a learned cross-visit pair: the roll at which the later visit's image was matched.
@@ -102,6 +191,8 @@ pub enum Verdict {
     RollDisagrees { turn_deg: f64, roll: Roll },
     /// Its offset between the two visits is `offset_deg`; the other pairs agree on `consensus_deg`.
     OffConsensus { offset_deg: f64, consensus_deg: f64 },
+    /// Its matches put the other camera `miss_m` from where navigation puts it; `tolerance_m` allowed.
+    OffNavigation { miss_m: f64, tolerance_m: f64 },
 }
 
 impl Verdict {
@@ -172,10 +263,14 @@ fn consensus(members: &[Offset], tolerance_deg: f64) -> Option<f64> {
 /// The verdict on every cross-visit pair of `pairs` (in their order; pairs
 /// within a visit are the chains). `visit_of` gives each image's visit (its
 /// place in the order of visits); an image without one is not checked.
+/// `navigation` holds the images with a navigated position (rule 3; none:
+/// not checked). A pair off the navigation is said so whatever the other rules
+/// say: navigation is evidence from outside the images.
 pub fn check_cross_pairs(
     pairs: &[CheckedPair],
     visit_of: &BTreeMap<ImageId, usize>,
     tolerance_deg: f64,
+    navigation: &Navigation,
 ) -> Vec<(usize, Verdict)> {
     let Votes { mut verdicts, groups, .. } = votes(pairs, visit_of);
     for members in groups.values() {
@@ -186,8 +281,174 @@ pub fn check_cross_pairs(
             }
         }
     }
+    let footings = footings(pairs, visit_of, &navigation.positions);
+    for (index, pair) in pairs.iter().enumerate().filter(|(_, p)| p.kind == PairKind::Cross) {
+        let Some((miss_m, tolerance_m)) = navigation_miss(pair, &footings, visit_of, navigation) else { continue };
+        if miss_m > tolerance_m {
+            let verdict = Verdict::OffNavigation { miss_m, tolerance_m };
+            match verdicts.iter_mut().find(|(i, _)| *i == index) {
+                Some(v) => v.1 = verdict,
+                None => verdicts.push((index, verdict)),
+            }
+        }
+    }
     verdicts.sort_by_key(|v| v.0);
     verdicts
+}
+
+/// An image's navigated position across the ground: the navigation frame's
+/// x and y (metres; z is the vertical in ENU and NED alike), with its
+/// standard deviation (metres, both axes together).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Navigated {
+    pub xy_m: [f64; 2],
+    pub sigma_m: f64,
+}
+
+/// The navigation rule 3 holds pairs to.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct Navigation {
+    /// The images with a navigated position.
+    pub positions: BTreeMap<ImageId, Navigated>,
+    /// How far a pair may put the other camera from its navigated position,
+    /// in standard deviations of the two positions; 0 turns the rule off.
+    pub tolerance_sigmas: f64,
+}
+
+/// Shifts shorter than this (pixels) give no reliable direction or scale.
+const MIN_SHIFT_PX: f64 = 50.0;
+
+/// The smallest tolerance of rule 3, pixels (a tenth of a VGA image): the
+/// shift is a downward camera's, and cameras tilt.
+const MIN_NAVIGATION_TOLERANCE_PX: f64 = 64.0;
+
+/// How one visit's navigation maps to its images' pixels: a move of `w`
+/// metres shows as `heading`-turned (and, `mirrored`, reflected) `w /
+/// metres_per_px` pixels in an image.
+struct Footing {
+    metres_per_px: f64,
+    mirrored: bool,
+    /// Radians, per image with a pair to fix it.
+    headings: BTreeMap<ImageId, f64>,
+}
+
+impl Footing {
+    /// Where `image` should see a point `w_m` metres away from its own centre's ground.
+    fn predicted_px(&self, image: ImageId, w_m: [f64; 2]) -> Option<[f64; 2]> {
+        let (sin, cos) = self.headings.get(&image)?.sin_cos();
+        let [x, y] = [w_m[0] / self.metres_per_px, w_m[1] / self.metres_per_px];
+        Some(match self.mirrored {
+            true => [cos * x + sin * y, sin * x - cos * y],
+            false => [cos * x - sin * y, sin * x + cos * y],
+        })
+    }
+}
+
+/// One image of a verified pair within a visit: where it sees the other
+/// image's centre (pixels from its own) and where navigation puts the other
+/// camera (metres from its own).
+struct Sample {
+    image: ImageId,
+    seen_px: [f64; 2],
+    away_m: [f64; 2],
+}
+
+/// A handedness clearly fits better when its headings cohere by this factor more.
+const HANDEDNESS_MARGIN: f64 = 1.02;
+
+/// Each visit's [`Footing`] (by visit), from its own verified pairs with
+/// navigation on both images (at least 3 with a long enough shift; else the
+/// visit has none), for each handedness of the navigation frame the pairs
+/// cannot tell apart: one when a handedness fits clearly better over all
+/// visits, both when every track is one straight line.
+fn footings(
+    pairs: &[CheckedPair],
+    visit_of: &BTreeMap<ImageId, usize>,
+    navigation: &BTreeMap<ImageId, Navigated>,
+) -> Vec<BTreeMap<usize, Footing>> {
+    let mut samples: BTreeMap<usize, Vec<Sample>> = BTreeMap::new();
+    for pair in pairs.iter().filter(|p| p.kind == PairKind::Intra) {
+        let (Some(shift), Some(n1), Some(n2)) =
+            (pair.shift, navigation.get(&pair.image_id1), navigation.get(&pair.image_id2))
+        else {
+            continue;
+        };
+        let Some(&visit) = visit_of.get(&pair.image_id1).filter(|v| visit_of.get(&pair.image_id2) == Some(v)) else {
+            continue;
+        };
+        let w = [n2.xy_m[0] - n1.xy_m[0], n2.xy_m[1] - n1.xy_m[1]];
+        if length(shift.other_in_1) >= MIN_SHIFT_PX && length(shift.other_in_2) >= MIN_SHIFT_PX {
+            let list = samples.entry(visit).or_default();
+            list.push(Sample { image: pair.image_id1, seen_px: shift.other_in_1, away_m: w });
+            list.push(Sample { image: pair.image_id2, seen_px: shift.other_in_2, away_m: [-w[0], -w[1]] });
+        }
+    }
+    samples.retain(|_, samples| samples.len() >= 6);
+    // Mirrored, a heading is the sum of the pixel and the navigation angles; turned, their
+    // difference. The coherence of each image's headings tells the handedness.
+    let fit = |mirrored: bool| -> (BTreeMap<usize, Footing>, f64) {
+        let mut coherence = 0.0;
+        let mut footings = BTreeMap::new();
+        for (visit, samples) in &samples {
+            let metres_per_px = median(samples.iter().map(|s| length(s.away_m) / length(s.seen_px)).collect());
+            let mut sums: BTreeMap<ImageId, [f64; 2]> = BTreeMap::new();
+            for Sample { image, seen_px: p, away_m: w } in samples {
+                let (a, b) = (p[1].atan2(p[0]), w[1].atan2(w[0]));
+                let heading = if mirrored { a + b } else { a - b };
+                let sum = sums.entry(*image).or_default();
+                (sum[0], sum[1]) = (sum[0] + heading.cos(), sum[1] + heading.sin());
+            }
+            coherence += sums.values().map(|s| length(*s)).sum::<f64>();
+            let headings = sums.into_iter().map(|(image, s)| (image, s[1].atan2(s[0]))).collect();
+            footings.insert(*visit, Footing { metres_per_px, mirrored, headings });
+        }
+        (footings, coherence)
+    };
+    let ((mirrored, mirrored_fit), (turned, turned_fit)) = (fit(true), fit(false));
+    if mirrored_fit > HANDEDNESS_MARGIN * turned_fit {
+        vec![mirrored]
+    } else if turned_fit > HANDEDNESS_MARGIN * mirrored_fit {
+        vec![turned]
+    } else {
+        vec![mirrored, turned]
+    }
+}
+
+/// How far (metres) a cross-visit pair's matches put the other camera from
+/// where navigation puts it (the worse of the two images that can tell; the
+/// better of the handednesses still open), and the tolerance; `None` when
+/// neither image can tell.
+fn navigation_miss(
+    pair: &CheckedPair,
+    footings: &[BTreeMap<usize, Footing>],
+    visit_of: &BTreeMap<ImageId, usize>,
+    navigation: &Navigation,
+) -> Option<(f64, f64)> {
+    if navigation.tolerance_sigmas <= 0.0 {
+        return None;
+    }
+    let positions = &navigation.positions;
+    let (shift, n1, n2) = (pair.shift?, positions.get(&pair.image_id1)?, positions.get(&pair.image_id2)?);
+    let w = [n2.xy_m[0] - n1.xy_m[0], n2.xy_m[1] - n1.xy_m[1]];
+    let sides = [(pair.image_id1, shift.other_in_1, w), (pair.image_id2, shift.other_in_2, [-w[0], -w[1]])];
+    let worst = |footings: &BTreeMap<usize, Footing>| -> Option<(f64, f64)> {
+        let mut worst: Option<(f64, f64)> = None;
+        for (image, seen_px, w_m) in sides {
+            let Some(footing) = visit_of.get(&image).and_then(|v| footings.get(v)) else { continue };
+            let Some(predicted) = footing.predicted_px(image, w_m) else { continue };
+            let miss_m = length([predicted[0] - seen_px[0], predicted[1] - seen_px[1]]) * footing.metres_per_px;
+            let floor_m = MIN_NAVIGATION_TOLERANCE_PX * footing.metres_per_px;
+            let (m, f) = worst.unwrap_or((0.0, 0.0));
+            worst = Some((m.max(miss_m), f.max(floor_m)));
+        }
+        worst
+    };
+    let (miss_m, floor_m) = footings.iter().filter_map(worst).min_by(|a, b| a.0.total_cmp(&b.0))?;
+    Some((miss_m, (navigation.tolerance_sigmas * n1.sigma_m.hypot(n2.sigma_m)).max(floor_m)))
+}
+
+fn length(v: [f64; 2]) -> f64 {
+    v[0].hypot(v[1])
 }
 
 /// The turns that the verified pairs predict for pairs not matched yet: each
@@ -344,7 +605,7 @@ mod tests {
     }
 
     fn pair(image_id1: ImageId, image_id2: ImageId, kind: PairKind, deg: f64, roll: Option<Roll>) -> CheckedPair {
-        CheckedPair { image_id1, image_id2, kind, turn: Turn { deg, agreement: 1.0 }, inliers: 50, roll }
+        CheckedPair { image_id1, image_id2, kind, turn: Turn { deg, agreement: 1.0 }, shift: None, inliers: 50, roll }
     }
 
     #[test]
@@ -367,14 +628,97 @@ mod tests {
             // Stored the other way round (image 1 of the pair in the later visit).
             pair(13, 2, PairKind::Cross, wrap(-277.0), Some(Roll::R90)),
         ];
-        let verdicts = check_cross_pairs(&pairs, &visit_of, DEFAULT_CONSISTENCY_TOLERANCE_DEG);
+        let verdicts = check_cross_pairs(&pairs, &visit_of, DEFAULT_CONSISTENCY_TOLERANCE_DEG, &Navigation::default());
         let consistent: Vec<usize> = verdicts.iter().filter(|v| v.1.is_consistent()).map(|v| v.0).collect();
         assert_eq!(consistent, vec![4, 5, 6, 9]);
         assert!(matches!(verdicts[3].1, Verdict::RollDisagrees { roll: Roll::R90, .. }), "{verdicts:?}");
         assert!(matches!(verdicts[4].1, Verdict::OffConsensus { .. }), "{verdicts:?}");
         // Without the chains within the visits, each image is its own part: nothing to vote on.
         pairs.retain(|p| p.kind == PairKind::Cross);
-        let alone = check_cross_pairs(&pairs, &visit_of, DEFAULT_CONSISTENCY_TOLERANCE_DEG);
+        let alone = check_cross_pairs(&pairs, &visit_of, DEFAULT_CONSISTENCY_TOLERANCE_DEG, &Navigation::default());
         assert_eq!(alone.iter().filter(|v| v.1.is_consistent()).count(), 5);
+    }
+
+    #[test]
+    fn shift_finds_where_each_image_sees_the_other_centre() {
+        // `turned` turns about (320, 240) and moves by (10, -10); a third of the matches are wrong.
+        for deg in [0.0, 37.0, 183.0] {
+            let (a, b) = turned(deg, 3);
+            let found = turn(&a, &b).unwrap();
+            let shift = shift(&a, &b, found.deg, [320.0, 240.0], [320.0, 240.0]).unwrap();
+            let (sin, cos) = f64::to_radians(deg).sin_cos();
+            let back = [cos * -10.0 + sin * 10.0, -sin * -10.0 + cos * 10.0];
+            let near = |p: [f64; 2], q: [f64; 2]| (p[0] - q[0]).hypot(p[1] - q[1]) < 1.0;
+            assert!(near(shift.other_in_2, [10.0, -10.0]), "{deg}: {shift:?}");
+            assert!(near(shift.other_in_1, back), "{deg}: {shift:?}");
+        }
+    }
+
+    /// Two visits of four images each along a line (`bent`: turning at the
+    /// third), seen by a downward camera at 4 mm a pixel; `mirrored` as an ENU
+    /// frame is to the image's pixels (NED is not). Visit 0's images head 20
+    /// degrees in the frame, visit 1's 115.
+    fn navigated_visits(mirrored: bool, bent: bool) -> (Vec<CheckedPair>, BTreeMap<ImageId, usize>, Navigation) {
+        let visit_of: BTreeMap<ImageId, usize> =
+            [(1, 0), (2, 0), (3, 0), (4, 0), (11, 1), (12, 1), (13, 1), (14, 1)].into();
+        let xy = |id: ImageId| -> [f64; 2] {
+            let k = f64::from(id % 10);
+            let across = if bent && k > 3.0 { 0.6 } else { 0.0 };
+            match id < 10 {
+                true => [0.5 * k.min(3.0), 0.1 * k + across],
+                false => [0.5 * k.min(3.0) + 0.05, 0.12 * k - 0.04 + across],
+            }
+        };
+        let heading_deg = |id: ImageId| if id < 10 { 20.0 } else { 115.0 };
+        // Where `image` sees a point `w` metres away.
+        let seen = |image: ImageId, w: [f64; 2]| -> [f64; 2] {
+            let (sin, cos) = f64::to_radians(heading_deg(image)).sin_cos();
+            let [x, y] = [w[0] / 0.004, w[1] / 0.004];
+            match mirrored {
+                true => [cos * x + sin * y, sin * x - cos * y],
+                false => [cos * x - sin * y, sin * x + cos * y],
+            }
+        };
+        let pair = |a: ImageId, b: ImageId, kind: PairKind| -> CheckedPair {
+            let w = [xy(b)[0] - xy(a)[0], xy(b)[1] - xy(a)[1]];
+            let shift = Shift { other_in_1: seen(a, w), other_in_2: seen(b, [-w[0], -w[1]]) };
+            let deg = wrap(heading_deg(b) - heading_deg(a));
+            CheckedPair { shift: Some(shift), ..pair(a, b, kind, if mirrored { wrap(-deg) } else { deg }, None) }
+        };
+        let mut pairs = Vec::new();
+        for base in [0, 10] {
+            for (a, b) in [(1, 2), (2, 3), (3, 4), (1, 3), (2, 4)] {
+                pairs.push(pair(base + a, base + b, PairKind::Intra));
+            }
+        }
+        pairs.extend([pair(1, 11, PairKind::Cross), pair(2, 12, PairKind::Cross), pair(3, 12, PairKind::Cross)]);
+        // Two places 1 m apart that matched coherently: the matches say 0.2 m, turned right.
+        let mut wrong = pair(1, 13, PairKind::Cross);
+        wrong.shift = Some(Shift { other_in_1: seen(1, [0.2, 0.0]), other_in_2: seen(13, [-0.2, 0.0]) });
+        pairs.push(wrong);
+        let positions = visit_of.keys().map(|&id| (id, Navigated { xy_m: xy(id), sigma_m: 0.1 })).collect();
+        (pairs, visit_of, Navigation { positions, tolerance_sigmas: DEFAULT_NAVIGATION_TOLERANCE_SIGMAS })
+    }
+
+    #[test]
+    fn a_pair_whose_matches_move_the_camera_off_its_navigation_is_caught() {
+        for (mirrored, bent) in [(true, false), (false, false), (true, true), (false, true)] {
+            let (pairs, visit_of, mut navigation) = navigated_visits(mirrored, bent);
+            // A bent track tells ENU from NED; a straight one leaves both open.
+            let open = footings(&pairs, &visit_of, &navigation.positions);
+            assert_eq!(open.len(), if bent { 1 } else { 2 });
+            assert!(open.iter().any(|f| f[&0].mirrored == mirrored && f[&1].mirrored == mirrored));
+            let verdicts = check_cross_pairs(&pairs, &visit_of, DEFAULT_CONSISTENCY_TOLERANCE_DEG, &navigation);
+            let off: Vec<usize> =
+                verdicts.iter().filter(|v| matches!(v.1, Verdict::OffNavigation { .. })).map(|v| v.0).collect();
+            assert_eq!(off, vec![13], "mirrored {mirrored}: {verdicts:?}");
+            let Verdict::OffNavigation { miss_m, tolerance_m } = verdicts.last().unwrap().1 else { unreachable!() };
+            // Navigated (1.05, 0.22) m apart, matched (0.2, 0) m apart; 3 x 0.14 m allowed.
+            assert!((miss_m - 0.85f64.hypot(0.22)).abs() < 1e-6, "{miss_m}");
+            assert!((tolerance_m - 3.0 * 0.1f64.hypot(0.1)).abs() < 1e-9, "{tolerance_m}");
+            navigation.tolerance_sigmas = 0.0;
+            let verdicts = check_cross_pairs(&pairs, &visit_of, DEFAULT_CONSISTENCY_TOLERANCE_DEG, &navigation);
+            assert!(verdicts.iter().all(|v| !matches!(v.1, Verdict::OffNavigation { .. })), "{verdicts:?}");
+        }
     }
 }

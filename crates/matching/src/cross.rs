@@ -18,7 +18,7 @@ use revisit_core::{CrossKey, Keypoint, LearnedFeatures, PairKind, Roll, TwoViewG
 use revisit_onnx::OnnxError;
 use serde::{Deserialize, Serialize};
 
-use crate::consistency::DEFAULT_CONSISTENCY_TOLERANCE_DEG;
+use crate::consistency::{DEFAULT_CONSISTENCY_TOLERANCE_DEG, DEFAULT_NAVIGATION_TOLERANCE_SIGMAS};
 use crate::roll::{
     match_at_prediction, match_with_rolls, unrolled_keypoints, CrossMatch, Prediction, RollSearch, DEFAULT_ROLL_MARGIN,
 };
@@ -60,6 +60,11 @@ pub struct CrossOptions {
     /// and on some surveys one is the only thing that brings an image into
     /// the model (issue 11's note).
     pub set_aside_inconsistent: bool,
+    /// A verified cross-visit pair whose matches put the other camera farther
+    /// from its navigated position than this many standard deviations of the
+    /// two positions is inconsistent ([`crate::consistency`], rule 3); 0 turns
+    /// the check off. Default [`DEFAULT_NAVIGATION_TOLERANCE_SIGMAS`].
+    pub navigation_tolerance_sigmas: f64,
 }
 
 impl Default for CrossOptions {
@@ -71,6 +76,7 @@ impl Default for CrossOptions {
             verify: VerifyOptions { min_inliers: CROSS_MIN_INLIERS, ..VerifyOptions::default() },
             consistency_tolerance_deg: DEFAULT_CONSISTENCY_TOLERANCE_DEG,
             set_aside_inconsistent: false,
+            navigation_tolerance_sigmas: DEFAULT_NAVIGATION_TOLERANCE_SIGMAS,
         }
     }
 }
@@ -81,6 +87,7 @@ impl CrossOptions {
         check_range("roll_margin", self.roll_margin, 1.0, f32::MAX, "at least 1")?;
         check_range("anchor_radius_px", self.anchor_radius_px, 0.0, 100.0, "in [0, 100]")?;
         check_range("consistency_tolerance_deg", self.consistency_tolerance_deg, 1.0, 180.0, "in [1, 180]")?;
+        check_range("navigation_tolerance_sigmas", self.navigation_tolerance_sigmas, 0.0, 1e6, "0 (off) or positive")?;
         self.verify.check()
     }
 }

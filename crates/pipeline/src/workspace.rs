@@ -342,10 +342,9 @@ impl Workspace {
             );
         }
         if self.sessions.len() >= 2 {
-            let options = &self.options.learned_matching;
-            let (tolerance, set_aside) = (options.consistency_tolerance_deg, options.set_aside_inconsistent);
+            let (options, change_aware) = (&self.options.learned_matching, self.options.mapper.change_aware);
             cross_report.consistency = Some(figures.run("consistency", || {
-                cross::check_consistency(&mut self.store, &self.sessions, tolerance, set_aside)
+                cross::check_consistency(&mut self.store, &self.sessions, options, change_aware)
             })?);
         }
         let outcome = figures.run("mapping", || self.map(cancel))?;

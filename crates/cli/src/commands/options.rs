@@ -139,9 +139,20 @@ pub struct OptionArgs {
     #[arg(long, default_value_t = revisit_matching::DEFAULT_CONSISTENCY_TOLERANCE_DEG, value_name = "DEG")]
     consistency_tolerance: f64,
     /// Set inconsistent cross-visit pairs aside (not mapped) instead of only
-    /// reporting them.
+    /// reporting them (with --change-aware, those off the navigation are set
+    /// aside without it).
     #[arg(long)]
     set_aside_inconsistent: bool,
+    /// With navigation priors (--nav, --nav-topic), a verified cross-visit pair
+    /// whose matches put the other camera farther from its navigated position
+    /// than SIGMAS standard deviations of the two positions (at least 64
+    /// pixels' worth) is inconsistent, and set aside when mapping
+    /// --change-aware: two images of different places can match coherently on
+    /// a near-flat seabed, and navigation tells them apart. Each visit's own
+    /// pairs calibrate how its navigation maps to its pixels (scale, headings,
+    /// ENU or NED). 0 turns the check off.
+    #[arg(long, default_value_t = revisit_matching::DEFAULT_NAVIGATION_TOLERANCE_SIGMAS, value_name = "SIGMAS")]
+    nav_check: f64,
     /// Images and pairs the learned models work on at once, each on one thread
     /// of ONNX Runtime; 1 = one at a time on every thread; 0 = one per core, as
     /// many as the available memory holds. The results do not depend on it.
@@ -234,6 +245,7 @@ impl OptionArgs {
         cross.verify.max_error_px = self.cross_max_error;
         cross.consistency_tolerance_deg = self.consistency_tolerance;
         cross.set_aside_inconsistent = self.set_aside_inconsistent;
+        cross.navigation_tolerance_sigmas = self.nav_check;
         options.learned_workers = self.learned_workers;
         options.places.candidates.top_k = self.vpr_top_k;
         options.places.candidates.max_distance = self.vpr_max_distance;
