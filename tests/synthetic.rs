@@ -107,8 +107,8 @@ fn unchanged_reef_reconstructs_to_subpixel_cross_visit_error() {
     let centre_rel = scores["truth"]["overall"]["centre_median_rel"].as_f64().unwrap();
     assert!(centre_rel < 0.01, "camera-centre error {centre_rel} of the scene size");
 
-    // The change map of a reef that did not change: measured over the visits' overlap, and no
-    // region beyond its level of detection.
+    // The change map of a reef that did not change, from each visit's dense surface (the
+    // default): measured over the visits' overlap, and no region beyond its level of detection.
     let change = dir.path().join("change");
     let (work_s, change_s) = (work.to_str().unwrap(), change.to_str().unwrap());
     let truth_s = reef.join("truth").display().to_string();
@@ -116,6 +116,20 @@ fn unchanged_reef_reconstructs_to_subpixel_cross_visit_error() {
     let out = run_ok(&[&change_args[..], &["--truth", &truth_s]].concat());
     println!("{}", String::from_utf8_lossy(&out.stdout));
     let summary = read_json(&change.join("change_s1-s3.json"));
+    assert_eq!(summary["surface"], "dense");
+    for (k, visit) in ["s1", "s3"].iter().enumerate() {
+        let made = &summary["dense"][k];
+        assert_eq!(made["visit"], *visit);
+        assert_eq!(made["fused"], made["images"], "every image paired twice: {made:#}");
+        let ply = std::fs::read(change.join("dense").join(format!("{visit}.ply"))).unwrap();
+        let header = String::from_utf8_lossy(&ply[..300]).to_string();
+        assert!(header.contains(&format!("element vertex {}\n", made["points"])), "{header}");
+        assert!(made["points"].as_u64().unwrap() > 10_000, "{made:#}");
+    }
+    // Made once: a second map of the same model reads the surfaces back.
+    let again = run_ok(&change_args);
+    assert_eq!(String::from_utf8_lossy(&again.stdout).matches("(made before,").count(), 2);
+    assert_eq!(read_json(&change.join("change_s1-s3.json"))["regions"], summary["regions"]);
     let measured = summary["cells_measured"].as_u64().unwrap();
     assert!(measured >= 300, "{summary:#}");
     assert_eq!(summary["regions"].as_array().unwrap().len(), 0, "{summary:#}");
@@ -126,8 +140,29 @@ fn unchanged_reef_reconstructs_to_subpixel_cross_visit_error() {
     assert_eq!(csv.lines().count(), 1, "header only: {csv}");
     let png = image::open(change.join("change_s1-s3.png")).unwrap();
     assert!(png.width() >= 520);
+    // From the model's sparse points: no region either.
+    let sparse = dir.path().join("change-sparse");
+    run_ok(&[
+        "change",
+        "--model",
+        work_s,
+        "--from",
+        "s1",
+        "--to",
+        "s3",
+        "--out",
+        sparse.to_str().unwrap(),
+        "--surface",
+        "sparse",
+    ]);
+    let summary = read_json(&sparse.join("change_s1-s3.json"));
+    assert!(summary["cells_measured"].as_u64().unwrap() >= 300, "{summary:#}");
+    assert_eq!(summary["regions"].as_array().unwrap().len(), 0, "{summary:#}");
     let err = run_err(&["change", "--model", work_s, "--from", "s1", "--to", "s9", "--out", change_s]);
     assert!(err.contains("visit s9 has no image in the model (its visits: s1, s2, s3)"), "{err}");
+    assert_eq!(err.lines().count(), 1, "{err}");
+    let err = run_err(&[&change_args[..], &["--max-seen-through", "2"]].concat());
+    assert!(err.contains("--max-seen-through: 2 is not a share from 0 to 1"), "{err}");
     assert_eq!(err.lines().count(), 1, "{err}");
 
     // Visits flown with one uncalibrated camera share it and refine it jointly: one camera for

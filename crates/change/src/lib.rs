@@ -1,9 +1,13 @@
 //! revisit-change: where the reef changed between two visits of one joint model.
 //!
-//! Every 3D point of a joint model is tagged with the visits whose images observe it
-//! ([`visits_of_points`]). [`detect`] compares the surface visit B observed with visit A's,
-//! each as the points only that visit observes (a point tracked across both is one sample of
-//! both surfaces: it would pull their difference to zero and hide the registration error), in
+//! [`detect`] compares the surface visit B saw with visit A's, each a point cloud in the joint
+//! model's frame: either each visit's dense surface from its own images at the model's poses
+//! (revisit-colmap's `dense`, what `revisit change` uses by default: sparse points sample
+//! texture, and a smooth coral table that a storm removed holds almost none), or
+//! [`sparse_surfaces`]: the model's points tagged with the visits whose images observe them
+//! ([`visits_of_points`]), each visit's the points only it observes (a point tracked across
+//! both is one sample of both surfaces: it would pull their difference to zero and hide the
+//! registration error). The comparison is made in
 //! the manner of M3C2 (Lague, Brodu and Leroux 2013, ISPRS J. 82): on a grid of core points
 //! over the site, a normal is fitted to A's points around each, and the change is the
 //! distance between the medians of A's and B's points along that normal, within a cylinder.
@@ -38,6 +42,9 @@ use serde::Serialize;
 
 pub use output::{encode_ply, map_png, regions_csv};
 
+/// The region size `ChangeOptions::region_lod_factor` is stated for: a 3 x 3 patch.
+const REGION_REFERENCE_CELLS: f64 = 9.0;
+
 /// Most grid cells a map may have.
 pub const MAX_CELLS: usize = 16_000_000;
 
@@ -57,11 +64,24 @@ pub struct ChangeOptions {
     pub max_depth: Option<f64>,
     /// Fewest points of each visit in a cylinder for a measurement. Default 4.
     pub min_points: usize,
+    /// Fewest points of each visit within half the cylinder's radius of its axis. Default 3: a
+    /// cylinder one visit sees only at its rim (the sand beyond a coral table's plate, hidden
+    /// from that visit's side) would compare two different surfaces.
+    pub min_inner_points: usize,
+    /// Largest share of the higher visit's points in a cylinder that lie at the lower visit's
+    /// level (within a quarter of the cylinder's radius of its median) for a change beyond
+    /// half the radius to be measured. Default 0.3: where the earlier visit also saw the sand
+    /// the later one shows (through a branching coral's gaps), the later visit's missing
+    /// branches may be branches it did not resolve; on the unchanged test reef such a coral
+    /// made the one false region (README).
+    pub max_seen_through: f64,
     /// Fewest cells of a reported region. Default 3.
     pub min_cells: usize,
-    /// A region is reported when its mean change is at least this many times its cells' mean
-    /// LoD95. Default 2: a guard against chance clusters, since one cell in twenty exceeds its
-    /// LoD95 by chance and a map tests thousands.
+    /// A region of nine cells (a 3 x 3 patch) is reported when its mean change is at least
+    /// this many times its cells' mean LoD95; a region of n cells when it is at least this
+    /// times sqrt(9 / n) times it (the mean over more cells is surer). Default 2: a guard
+    /// against chance clusters, since one cell in twenty exceeds its LoD95 by chance and a
+    /// map tests thousands.
     pub region_lod_factor: f64,
     /// Fewest observations of a point for it to count. Default 3: a point seen in two
     /// images has the least certain depth.
@@ -76,10 +96,41 @@ impl Default for ChangeOptions {
             normal_radius: None,
             max_depth: None,
             min_points: 4,
+            min_inner_points: 3,
+            max_seen_through: 0.3,
             min_cells: 3,
             region_lod_factor: 2.0,
             min_track: 3,
         }
+    }
+}
+
+impl ChangeOptions {
+    /// Each option's value, checked (before any work is done), with the option named.
+    pub fn check(&self) -> Result<(), ChangeError> {
+        let sizes = [
+            (self.cell, "--cell"),
+            (self.radius, "--radius"),
+            (self.normal_radius, "--normal-radius"),
+            (self.max_depth, "--max-depth"),
+        ];
+        for (value, option) in sizes {
+            if let Some(v) = value.filter(|v| !(v.is_finite() && *v > 0.0)) {
+                return Err(ChangeError::BadOption { option, reason: format!("{v} is not a positive size") });
+            }
+        }
+        if !(self.region_lod_factor.is_finite() && self.region_lod_factor >= 0.0) {
+            let reason = format!("{} is not a factor of 0 or more", self.region_lod_factor);
+            return Err(ChangeError::BadOption { option: "--region-lod-factor", reason });
+        }
+        if !(0.0..=1.0).contains(&self.max_seen_through) {
+            let reason = format!("{} is not a share from 0 to 1", self.max_seen_through);
+            return Err(ChangeError::BadOption { option: "--max-seen-through", reason });
+        }
+        if self.min_points < 1 {
+            return Err(ChangeError::BadOption { option: "--min-points", reason: "must be at least 1".into() });
+        }
+        Ok(())
     }
 }
 
@@ -264,8 +315,42 @@ pub fn visits_of_points(model: &Reconstruction) -> BTreeMap<Point3DId, BTreeSet<
         .collect()
 }
 
-/// Compares visit `to`'s surface with visit `from`'s in `model` (see the crate's text).
-pub fn detect(model: &Reconstruction, from: &str, to: &str, options: &ChangeOptions) -> Result<ChangeMap, ChangeError> {
+/// Each visit's surface as two point clouds, model frame, and how many points were left out
+/// as seen by both.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct Surfaces {
+    pub from: Vec<Point3<f64>>,
+    pub to: Vec<Point3<f64>>,
+    /// Points of the joint model observed by both visits (left out: see the crate's text); 0
+    /// for surfaces made from each visit's images alone.
+    pub shared: usize,
+}
+
+/// The visits' surfaces as the joint model's sparse points sample them: each visit's points
+/// that only it observes, in `options.min_track` images or more.
+pub fn sparse_surfaces(
+    model: &Reconstruction,
+    from: &str,
+    to: &str,
+    options: &ChangeOptions,
+) -> Result<Surfaces, ChangeError> {
+    check_visits(model, from, to)?;
+    let visits = visits_of_points(model);
+    let mut surfaces = Surfaces::default();
+    for (id, point) in model.points3d.iter().filter(|(_, p)| p.track.len() >= options.min_track) {
+        let seen = &visits[id];
+        match (seen.contains(from), seen.contains(to)) {
+            (true, true) => surfaces.shared += 1,
+            (true, false) => surfaces.from.push(point.xyz),
+            (false, true) => surfaces.to.push(point.xyz),
+            (false, false) => {}
+        }
+    }
+    Ok(surfaces)
+}
+
+/// Both visits have images in the model, and they differ.
+pub fn check_visits(model: &Reconstruction, from: &str, to: &str) -> Result<(), ChangeError> {
     if from == to {
         return Err(ChangeError::SameVisit(from.to_owned()));
     }
@@ -276,25 +361,28 @@ pub fn detect(model: &Reconstruction, from: &str, to: &str, options: &ChangeOpti
             return Err(ChangeError::NoVisit { visit: visit.to_owned(), present });
         }
     }
-    let visits = visits_of_points(model);
-    let (mut cloud_from, mut cloud_to, mut shared) = (Vec::new(), Vec::new(), 0);
-    for (id, point) in model.points3d.iter().filter(|(_, p)| p.track.len() >= options.min_track) {
-        let seen = &visits[id];
-        match (seen.contains(from), seen.contains(to)) {
-            (true, true) => shared += 1,
-            (true, false) => cloud_from.push(point.xyz),
-            (false, true) => cloud_to.push(point.xyz),
-            (false, false) => {}
-        }
-    }
-    for (visit, cloud) in [(from, &cloud_from), (to, &cloud_to)] {
+    Ok(())
+}
+
+/// Compares visit `to`'s surface with visit `from`'s (see the crate's text). `model` gives the
+/// visits' cameras (where up is, and the altitude the default sizes scale with).
+pub fn detect(
+    model: &Reconstruction,
+    from: &str,
+    to: &str,
+    surfaces: &Surfaces,
+    options: &ChangeOptions,
+) -> Result<ChangeMap, ChangeError> {
+    check_visits(model, from, to)?;
+    let Surfaces { from: cloud_from, to: cloud_to, shared } = surfaces;
+    for (visit, cloud) in [(from, cloud_from), (to, cloud_to)] {
         if cloud.len() < 10 {
             return Err(ChangeError::TooFewPoints { visit: visit.to_owned(), points: cloud.len() });
         }
     }
 
     let scales = resolve_scales(model, [from, to], options)?;
-    let frame = map_frame(model, [from, to], cloud_from.iter().chain(&cloud_to));
+    let frame = map_frame(model, [from, to], cloud_from.iter().chain(cloud_to));
     let map_from: Vec<[f64; 3]> = cloud_from.iter().map(|p| frame.to_map(p)).collect();
     let map_to: Vec<[f64; 3]> = cloud_to.iter().map(|p| frame.to_map(p)).collect();
     let grid = grid_over(map_from.iter().chain(&map_to), scales.cell)?;
@@ -330,7 +418,7 @@ pub fn detect(model: &Reconstruction, from: &str, to: &str, options: &ChangeOpti
         grid,
         points_from: cloud_from.len(),
         points_to: cloud_to.len(),
-        points_shared: shared,
+        points_shared: *shared,
         cells,
         registration,
         median_change,
@@ -357,26 +445,15 @@ fn resolve_scales(model: &Reconstruction, visits: [&str; 2], options: &ChangeOpt
     if !(altitude.is_finite() && altitude > 0.0) {
         return Err(ChangeError::TooFewPoints { visit: visits.join(" and "), points: 0 });
     }
-    let pick = |value: Option<f64>, fraction: f64, option: &'static str| match value {
-        Some(v) if v.is_finite() && v > 0.0 => Ok(v),
-        Some(v) => Err(ChangeError::BadOption { option, reason: format!("{v} is not a positive size") }),
-        None => Ok(fraction * altitude),
-    };
-    let scales = Scales {
+    options.check()?;
+    let pick = |value: Option<f64>, fraction: f64| value.unwrap_or(fraction * altitude);
+    Ok(Scales {
         altitude,
-        cell: pick(options.cell, 0.04, "--cell")?,
-        radius: pick(options.radius, 0.08, "--radius")?,
-        normal_radius: pick(options.normal_radius, 0.5, "--normal-radius")?,
-        max_depth: pick(options.max_depth, 0.5, "--max-depth")?,
-    };
-    if !(options.region_lod_factor.is_finite() && options.region_lod_factor >= 0.0) {
-        let reason = format!("{} is not a factor of 0 or more", options.region_lod_factor);
-        return Err(ChangeError::BadOption { option: "--region-lod-factor", reason });
-    }
-    if options.min_points < 1 {
-        return Err(ChangeError::BadOption { option: "--min-points", reason: "must be at least 1".into() });
-    }
-    Ok(scales)
+        cell: pick(options.cell, 0.04),
+        radius: pick(options.radius, 0.08),
+        normal_radius: pick(options.normal_radius, 0.5),
+        max_depth: pick(options.max_depth, 0.5),
+    })
 }
 
 /// The site's plane (least squares), `up` towards the visits' cameras.
@@ -492,25 +569,44 @@ fn measure(
     let core = Vector3::new(centre[0], centre[1], median_in_place(&mut heights));
     let tilt = (1.0 - normal.z * normal.z).max(0.0).sqrt();
     let search = scales.radius + scales.max_depth * tilt;
-    let along = |buckets: &Buckets| -> Vec<f64> {
-        buckets
+    let along = |buckets: &Buckets| -> (Vec<f64>, usize) {
+        let mut inner = 0;
+        let distances = buckets
             .near(centre, search)
             .iter()
             .filter_map(|p| {
                 let d = Vector3::from(*p) - core;
                 let distance = d.dot(&normal);
                 let lateral = (d - normal * distance).norm();
-                (lateral <= scales.radius && distance.abs() <= scales.max_depth).then_some(distance)
+                let inside = lateral <= scales.radius && distance.abs() <= scales.max_depth;
+                inner += usize::from(inside && lateral <= scales.radius / 2.0);
+                inside.then_some(distance)
             })
-            .collect()
+            .collect();
+        (distances, inner)
     };
-    let (mut a, mut b) = (along(from), along(to));
+    let ((mut a, inner_a), (mut b, inner_b)) = (along(from), along(to));
     if a.len() < options.min_points || b.len() < options.min_points {
+        return None;
+    }
+    // Seen only at its rim by one visit (a table's plate hiding the sand beyond it from one
+    // side), the cylinder would compare two different surfaces.
+    if inner_a < options.min_inner_points || inner_b < options.min_inner_points {
         return None;
     }
     let seed = 2 * (row * grid.cols + col) as u64;
     let sampling = (median_variance(&a, seed) + median_variance(&b, seed + 1)).sqrt();
-    let change = median_in_place(&mut b) - median_in_place(&mut a);
+    let (median_a, median_b) = (median_in_place(&mut a), median_in_place(&mut b));
+    let change = median_b - median_a;
+    // The lower visit's level, as seen by the higher one: a visit that also saw it (through a
+    // branching coral's gaps) cannot tell a coral gone from one the other visit did not resolve.
+    let level = scales.radius / 4.0;
+    let share_at = |values: &[f64], at: f64| values.iter().filter(|v| (**v - at).abs() <= level).count() as f64;
+    let seen_through =
+        if change < 0.0 { share_at(&a, median_b) / a.len() as f64 } else { share_at(&b, median_a) / b.len() as f64 };
+    if change.abs() > 2.0 * level && seen_through > options.max_seen_through {
+        return None;
+    }
     Some(Cell {
         col,
         row,
@@ -578,7 +674,8 @@ fn regions(grid: &Grid, cells: &[Cell], options: &ChangeOptions) -> Vec<Region> 
             mean_lod95: members.iter().map(|&k| cells[k].lod95).sum::<f64>() / n,
             cells: members,
         });
-        if found.last().is_some_and(|r| r.mean_change.abs() < options.region_lod_factor * r.mean_lod95) {
+        let needed = |r: &Region| options.region_lod_factor * (REGION_REFERENCE_CELLS / r.cells.len() as f64).sqrt();
+        if found.last().is_some_and(|r| r.mean_change.abs() < needed(r) * r.mean_lod95) {
             found.pop();
         }
     }
@@ -644,6 +741,16 @@ pub(crate) mod testing {
         ChangeOptions { min_track: 1, ..ChangeOptions::default() }
     }
 
+    /// The map of the model's sparse points.
+    pub fn sparse_map(
+        model: &Reconstruction,
+        from: &str,
+        to: &str,
+        options: &ChangeOptions,
+    ) -> Result<ChangeMap, ChangeError> {
+        detect(model, from, to, &sparse_surfaces(model, from, to, options)?, options)
+    }
+
     /// Seabed height of a visit at (x, y): flat, with a 0.3 m coral of radius 0.4 m at (-1, -1)
     /// that only visit A has, and a 0.2 m one at (1, 1) that only visit B has.
     fn seabed(visit: &str, x: f64, y: f64) -> f64 {
@@ -695,12 +802,12 @@ pub(crate) mod testing {
 
 #[cfg(test)]
 mod tests {
-    use super::testing::{all_points, two_visits};
+    use super::testing::{all_points, sparse_map, two_visits};
     use super::*;
 
     #[test]
     fn a_coral_removed_and_one_arrived_are_the_only_regions() {
-        let map = detect(&two_visits(true), "a", "b", &all_points()).expect("map");
+        let map = sparse_map(&two_visits(true), "a", "b", &all_points()).expect("map");
         assert!((map.scales.altitude - 2.0).abs() < 0.05, "altitude {}", map.scales.altitude);
         assert_eq!(map.regions.len(), 2, "{:?}", map.regions);
         let area = std::f64::consts::PI * 0.4 * 0.4;
@@ -717,7 +824,7 @@ mod tests {
 
     #[test]
     fn an_unchanged_site_has_no_region() {
-        let map = detect(&two_visits(false), "a", "b", &all_points()).expect("map");
+        let map = sparse_map(&two_visits(false), "a", "b", &all_points()).expect("map");
         assert!(map.cells.len() > 1000, "{} cells", map.cells.len());
         assert!(map.regions.is_empty(), "{:?}", map.regions);
         assert!(map.median_change.abs() < 0.005);
@@ -725,7 +832,7 @@ mod tests {
 
     #[test]
     fn the_outputs_hold_every_cell_and_region() {
-        let map = detect(&two_visits(true), "a", "b", &all_points()).expect("map");
+        let map = sparse_map(&two_visits(true), "a", "b", &all_points()).expect("map");
         let ply = encode_ply(&map);
         let header_end = ply.windows(11).position(|w| w == b"end_header\n").expect("header") + 11;
         assert_eq!(ply.len() - header_end, map.cells.len() * (3 * 8 + 3 + 4 + 4 + 1));
@@ -736,15 +843,81 @@ mod tests {
         assert!(png.width() >= 520 && png.height() > 100);
     }
 
+    /// A visit's surface on a 2.5 cm grid over the site, `height` giving its points at (x, y)
+    /// (none, one or several layers), with 1 cm of noise (seeded).
+    fn surface(offset: f64, height: impl Fn(f64, f64) -> Vec<f64>) -> Vec<Point3<f64>> {
+        let mut state = 11u64;
+        let mut noise = move || {
+            state = state.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
+            ((state >> 11) as f64 / (1u64 << 53) as f64 - 0.5) * 0.02
+        };
+        let mut points = Vec::new();
+        for i in 0..160 {
+            for j in 0..160 {
+                let (x, y) = (-2.0 + 0.025 * i as f64 + offset, -2.0 + 0.025 * j as f64 + offset);
+                points.extend(height(x, y).into_iter().map(|z| Point3::new(x, y, z + noise())));
+            }
+        }
+        points
+    }
+
+    #[test]
+    fn a_coral_one_visit_did_not_resolve_is_no_change() {
+        let model = two_visits(false);
+        let on_coral = |x: f64, y: f64| (x + 1.0).hypot(y + 1.0) < 0.4;
+        // A branching coral both visits flew over: the first saw its branches (0.25 m) and the
+        // sand through its gaps (every other point); the second resolved only the sand.
+        let porous = Surfaces {
+            from: surface(0.0, |x, y| match on_coral(x, y) {
+                true if ((x * 40.0).round() as i64 + (y * 40.0).round() as i64) % 2 == 0 => vec![0.25],
+                _ => vec![0.0],
+            }),
+            to: surface(0.01, |_, _| vec![0.0]),
+            shared: 0,
+        };
+        // A solid coral gone: the first visit saw only its top, the second the sand.
+        let removed =
+            Surfaces { from: surface(0.0, |x, y| vec![if on_coral(x, y) { 0.25 } else { 0.0 }]), ..porous.clone() };
+        // A solid coral still there, but the second visit saw the sand beyond one side of it only
+        // (a hole where the rest of its surface should be).
+        let hidden = Surfaces {
+            from: removed.from.clone(),
+            to: surface(0.01, |x, y| {
+                if on_coral(x, y) || (x + 1.0).hypot(y + 1.0) < 0.55 && x < -1.0 {
+                    vec![]
+                } else {
+                    vec![0.0]
+                }
+            }),
+            shared: 0,
+        };
+        let options = ChangeOptions::default();
+        let regions = |surfaces: &Surfaces, options: &ChangeOptions| {
+            detect(&model, "a", "b", surfaces, options).expect("map").regions
+        };
+        // At the unchanged corals no region says anything of their height (a ring of a few
+        // millimetres may remain where a cylinder's median moves with its share of branches).
+        let largest = |regions: Vec<Region>| regions.iter().map(|r| r.peak_change.abs()).fold(0.0, f64::max);
+        assert!(largest(regions(&porous, &options)) < 0.02, "{:?}", regions(&porous, &options));
+        assert!(largest(regions(&hidden, &options)) < 0.02, "{:?}", regions(&hidden, &options));
+        let gone = regions(&removed, &options);
+        assert_eq!(gone.len(), 1, "{gone:?}");
+        assert!((gone[0].peak_change + 0.25).abs() < 0.03, "{gone:?}");
+        // Without the two rules, both unchanged corals read as a change of their height.
+        let credulous = ChangeOptions { max_seen_through: 1.0, min_inner_points: 0, ..options };
+        assert!(largest(regions(&porous, &credulous)) > 0.2);
+        assert!(largest(regions(&hidden, &credulous)) > 0.2);
+    }
+
     #[test]
     fn bad_visits_and_sizes_are_named() {
         let model = two_visits(true);
-        let err = detect(&model, "a", "c", &all_points()).unwrap_err();
+        let err = sparse_map(&model, "a", "c", &all_points()).unwrap_err();
         assert_eq!(err.to_string(), "visit c has no image in the model (its visits: a, b)");
-        assert_eq!(detect(&model, "a", "a", &all_points()).unwrap_err(), ChangeError::SameVisit("a".into()));
+        assert_eq!(sparse_map(&model, "a", "a", &all_points()).unwrap_err(), ChangeError::SameVisit("a".into()));
         let options = ChangeOptions { cell: Some(-1.0), ..all_points() };
-        assert!(detect(&model, "a", "b", &options).unwrap_err().to_string().starts_with("invalid option --cell"));
+        assert!(sparse_map(&model, "a", "b", &options).unwrap_err().to_string().starts_with("invalid option --cell"));
         let options = ChangeOptions { cell: Some(1e-5), ..all_points() };
-        assert!(detect(&model, "a", "b", &options).unwrap_err().to_string().contains("choose a larger cell"));
+        assert!(sparse_map(&model, "a", "b", &options).unwrap_err().to_string().contains("choose a larger cell"));
     }
 }

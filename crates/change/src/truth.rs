@@ -233,7 +233,7 @@ id,kind,change,x0,y0,x1,y1,reach_m,moved_m,turned_deg,growth,height_change_m,ble
     fn regions_on_changed_corals_are_true_and_an_unseen_move_is_missed() {
         let truth = parse_changes_csv(CHANGES, "changes_a-b.csv").expect("csv");
         assert_eq!(truth.len(), 5);
-        let map = crate::detect(&two_visits(true), "a", "b", &all_points()).expect("map");
+        let map = crate::testing::sparse_map(&two_visits(true), "a", "b", &all_points()).expect("map");
         let scores = score(&map, &truth, &Similarity::identity());
         assert_eq!((scores.regions, scores.true_regions, scores.precision), (2, 2, Some(1.0)));
         // The removed head is found; the table the truth moved did not move in the model.

@@ -33,18 +33,23 @@ enum Command {
     /// Map where the reef changed between two visits of one joint model (M3C2-style distances,
     /// each with its level of detection): a PLY, a top-down PNG and a CSV of changed regions.
     ///
-    /// Visit B's surface against visit A's, M3C2-style: on a grid of core
-    /// points over the site, the distance from the points only A observes to those only B
-    /// observes, along A's surface normal, each with its 95% level of detection (LoD95, from the
-    /// bootstrapped spread of each visit's median in the cylinder and the registration error
-    /// between the visits, estimated from the change over the whole overlap: its median's size
-    /// plus its robust spread). Cells beyond their LoD95 are grouped into raised and lowered
-    /// regions; a region is kept when its mean change is at least twice its LoD95.
+    /// Visit B's surface against visit A's, M3C2-style. Each visit's surface is by default made
+    /// densely from its own images at the model's poses (OpenCV's semi-global matching between
+    /// each image and two of its visit's neighbours, kept where both agree; stored in OUT/dense
+    /// and reused while the model stays the same), or with `--surface sparse` taken from the
+    /// model's points only that visit observes. On a grid of core points over the site, the
+    /// distance from A's surface to B's along A's normal, each with its 95% level of detection
+    /// (LoD95, from the bootstrapped spread of each visit's median in the cylinder and the
+    /// registration error between the visits, estimated from the change over the whole overlap:
+    /// its median's size plus its robust spread). Cells beyond their LoD95 are grouped into
+    /// raised and lowered regions; a region is kept when its mean change is at least twice its
+    /// LoD95.
     ///
     /// Writes to OUT: change_A-B.ply (the core points coloured by signed change, with `change`,
     /// `lod95` and `significant` per point: Open3D, CloudCompare), change_A-B.png (a top-down map,
     /// north of the map frame up, with a scale bar), regions_A-B.csv (id, sign, cells, area,
-    /// centre, mean and peak change) and change_A-B.json (every figure). Sizes are in the model's
+    /// centre, mean and peak change), change_A-B.json (every figure) and, when dense,
+    /// dense/<visit>.ply (each visit's surface, model frame). Sizes are in the model's
     /// unit: metres when it was mapped with navigation priors (`reconstruct --nav`), COLMAP's
     /// arbitrary unit otherwise; the defaults scale with the survey's altitude.
     Change(commands::change::Args),

@@ -5,11 +5,16 @@
 //! pycolmap 4.2.1 do, plus a PLY export of the points. The decoders and
 //! encoders work on byte slices and strings; thin wrappers do the file I/O.
 //!
+//! [`dense`] makes each visit's dense surface from its images at a model's poses
+//! (OpenCV's semi-global matching).
+//!
 //! Invariant: this is the only crate that starts Python.
 
+pub mod dense;
 mod mapper;
 pub mod model;
 
+pub use dense::{run_dense, DenseError, DenseOptions, DenseRun, DenseVisit};
 pub use mapper::{
     check_python, run_mapper, run_until_cancelled, ChangeAware, CrossMatchFate, Engine, Mapped, MapperError,
     MapperOptions, MapperRun, ModelSummary, NavigationOffset, MIN_POSE_PRIORS, PYTHON_ENV,

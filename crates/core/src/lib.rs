@@ -9,6 +9,7 @@
 mod align;
 mod camera;
 mod features;
+mod fingerprint;
 mod name;
 mod navigation;
 mod pose;
@@ -19,6 +20,7 @@ pub use camera::{Camera, CameraModel, CameraModelError};
 pub use features::{
     pair_from_id, pair_id, CrossKey, Features, Keypoint, LearnedFeatures, Roll, TwoViewConfig, TwoViewGeometry,
 };
+pub use fingerprint::Fingerprint;
 pub use name::{check_camera_name, check_session_name, session_of, ImageName, NameError, PairKind, SESSION_SEPARATOR};
 pub use navigation::NavigationFix;
 pub use pose::Rigid3;

@@ -35,6 +35,7 @@ pub mod odometry;
 pub mod options;
 pub mod report;
 pub mod stages;
+pub mod surfaces;
 pub mod workers;
 mod workspace;
 
@@ -99,6 +100,17 @@ pub enum PipelineError {
     Colmap(#[from] revisit_colmap::ColmapError),
     #[error(transparent)]
     Mapper(#[from] revisit_colmap::MapperError),
+    #[error(transparent)]
+    Dense(revisit_colmap::DenseError),
+}
+
+impl From<revisit_colmap::DenseError> for PipelineError {
+    fn from(error: revisit_colmap::DenseError) -> Self {
+        match error {
+            revisit_colmap::DenseError::Cancelled => Self::Cancelled,
+            other => Self::Dense(other),
+        }
+    }
 }
 
 /// How a long stage reports progress: the CLI draws bars, a node logs.

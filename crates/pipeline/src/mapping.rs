@@ -107,18 +107,14 @@ pub fn priors_fingerprint(priors: &[PosePrior]) -> String {
     if priors.is_empty() {
         return String::new();
     }
-    let mut hash: u64 = 0xcbf2_9ce4_8422_2325;
-    let mut add = |word: u64| {
-        for byte in word.to_le_bytes() {
-            hash = (hash ^ u64::from(byte)).wrapping_mul(0x0100_0000_01b3);
-        }
-    };
+    let mut hash = revisit_core::Fingerprint::default();
     for prior in priors {
-        add(u64::from(prior.image_id));
-        prior.position_m.iter().for_each(|v| add(v.to_bits()));
-        prior.covariance_m2.iter().flat_map(|c| c.iter()).for_each(|v| add(v.to_bits()));
+        hash.u64(u64::from(prior.image_id));
+        for value in prior.position_m.iter().chain(prior.covariance_m2.iter().flatten()) {
+            hash.f64(*value);
+        }
     }
-    format!("{} priors {hash:016x}", priors.len())
+    format!("{} priors {}", priors.len(), hash.hex())
 }
 
 /// Whether the navigation priors are those the previous model was built with.

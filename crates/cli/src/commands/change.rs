@@ -4,10 +4,15 @@ use std::path::{Path, PathBuf};
 
 use anyhow::Context;
 use revisit_change::truth::{parse_changes_csv, score, ChangeScores};
-use revisit_change::{detect, encode_ply, map_png, regions_csv, ChangeMap, ChangeOptions};
+use revisit_change::{
+    check_visits, detect, encode_ply, map_png, regions_csv, sparse_surfaces, ChangeMap, ChangeOptions, Surfaces,
+};
+use revisit_colmap::{DenseOptions, DenseVisit};
 use revisit_core::Reconstruction;
 use revisit_eval::{parse_truth_poses_csv, score_truth, Alignment, TruthOptions};
+use revisit_pipeline::locate::Tools;
 use revisit_pipeline::report::{ModelFrame, Report};
+use revisit_pipeline::surfaces::{dense_surfaces, Surface};
 use serde::Serialize;
 
 /// `revisit change`'s arguments (the command's text is on `Command::Change`).
@@ -48,17 +53,54 @@ pub struct Args {
     /// Fewest points of each visit in a cylinder for a measurement.
     #[arg(long, default_value_t = 4, value_name = "N")]
     min_points: usize,
+    /// Fewest points of each visit within half the cylinder's radius of its axis (a cylinder
+    /// one visit sees only at its rim, as the sand beyond a coral table's plate, is not
+    /// measured) [default: 3 with dense surfaces, 0 with sparse ones, too thin for it].
+    #[arg(long, value_name = "N")]
+    min_inner_points: Option<usize>,
+    /// Largest share of the higher visit's points in a cylinder at the lower visit's level for
+    /// a change to be measured (where the earlier visit also saw, through a branching coral's
+    /// gaps, the sand the later one shows, the later one may just not have resolved the
+    /// branches).
+    #[arg(long, default_value_t = 0.3, value_name = "F")]
+    max_seen_through: f64,
     /// Fewest cells of a reported region.
     #[arg(long, default_value_t = 3, value_name = "N")]
     min_cells: usize,
-    /// A region is reported when its mean change is at least this many times its cells' mean
-    /// LoD95 (a guard against chance clusters: one cell in twenty passes its LoD95 by chance).
+    /// A region of nine cells is reported when its mean change is at least this many times its
+    /// cells' mean LoD95, one of n cells when it is this times sqrt(9 / n) times it (a guard
+    /// against chance clusters: one cell in twenty passes its LoD95 by chance; the mean over
+    /// more cells is surer).
     #[arg(long, default_value_t = 2.0, value_name = "F")]
     region_lod_factor: f64,
-    /// Fewest images observing a point for it to count (a point seen twice has the least
-    /// certain depth).
+    /// Fewest images observing a point for it to count, with `--surface sparse` (a point seen
+    /// twice has the least certain depth).
     #[arg(long, default_value_t = 3, value_name = "N")]
     min_track: usize,
+    /// Where each visit's surface comes from.
+    #[arg(long, value_enum, default_value_t = SurfaceArg::Dense)]
+    surface: SurfaceArg,
+    /// The folder the model's image names (session/file) are relative to, for dense surfaces
+    /// [default: the work folder's images/].
+    #[arg(long, value_name = "DIR")]
+    images: Option<PathBuf>,
+    /// Dense surfaces: one point per block of this many pixels a side.
+    #[arg(long, default_value_t = 4, value_name = "PX")]
+    dense_step: u32,
+    /// Python with pycolmap and OpenCV, for dense surfaces (default: $REVISIT_PYTHON, else
+    /// .venv/bin/python).
+    #[arg(long, value_name = "PATH")]
+    python: Option<PathBuf>,
+}
+
+#[derive(Clone, Copy, PartialEq, Eq, clap::ValueEnum, Serialize)]
+#[serde(rename_all = "lowercase")]
+enum SurfaceArg {
+    /// Each visit's surface made densely from its own images at the model's poses.
+    Dense,
+    /// The model's points that only the visit observes (fast; thin on smooth structure, such
+    /// as a coral table, that shows little texture).
+    Sparse,
 }
 
 /// change_A-B.json.
@@ -70,6 +112,9 @@ struct Summary<'a> {
     scales: &'a revisit_change::Scales,
     frame: &'a revisit_change::MapFrame,
     grid: &'a revisit_change::Grid,
+    surface: SurfaceArg,
+    /// How each dense surface was made (empty for sparse).
+    dense: &'a [DenseVisit],
     points_from: usize,
     points_to: usize,
     points_shared: usize,
@@ -89,16 +134,26 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         normal_radius: args.normal_radius,
         max_depth: args.max_depth,
         min_points: args.min_points,
+        min_inner_points: args.min_inner_points.unwrap_or(match args.surface {
+            SurfaceArg::Dense => ChangeOptions::default().min_inner_points,
+            SurfaceArg::Sparse => 0,
+        }),
+        max_seen_through: args.max_seen_through,
         min_cells: args.min_cells,
         region_lod_factor: args.region_lod_factor,
         min_track: args.min_track,
     };
+    options.check()?;
     let (path, model, frame) = read_model(&args.model).with_context(|| format!("--model {}", args.model.display()))?;
     let unit = match frame {
         ModelFrame::Navigation => "m",
         ModelFrame::Arbitrary => "units",
     };
-    let map = detect(&model, &args.from, &args.to, &options)?;
+    let (surfaces, dense) = match args.surface {
+        SurfaceArg::Sparse => (sparse_surfaces(&model, &args.from, &args.to, &options)?, Vec::new()),
+        SurfaceArg::Dense => made_densely(&args, &path, &model)?,
+    };
+    let map = detect(&model, &args.from, &args.to, &surfaces, &options)?;
     let truth = match &args.truth {
         Some(dir) => Some(score_on_truth(&map, &model, dir).with_context(|| format!("--truth {}", dir.display()))?),
         None => None,
@@ -118,6 +173,8 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         model: path.display().to_string(),
         unit,
         options: &options,
+        surface: args.surface,
+        dense: &dense,
         scales: &map.scales,
         frame: &map.frame,
         grid: &map.grid,
@@ -132,7 +189,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         truth: truth.as_ref(),
     };
     write(format!("change_{stem}.json"), (serde_json::to_string_pretty(&summary)? + "\n").as_bytes())?;
-    print!("{}", table(&map, unit, truth.as_ref()));
+    print!("{}", table(&map, args.surface, unit, truth.as_ref()));
     println!(
         "wrote {}",
         args.out
@@ -140,6 +197,45 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             .display()
     );
     Ok(())
+}
+
+/// Each visit's dense surface, made from its images at the model's poses (or read from
+/// OUT/dense when made before from the same poses).
+fn made_densely(args: &Args, model_dir: &Path, model: &Reconstruction) -> anyhow::Result<(Surfaces, Vec<DenseVisit>)> {
+    // The visits are checked first: a wrong name costs a line, not a dense run.
+    check_visits(model, &args.from, &args.to)?;
+    if args.dense_step == 0 {
+        anyhow::bail!("--dense-step must be at least 1 pixel");
+    }
+    let images = match &args.images {
+        Some(dir) => dir.clone(),
+        None if args.model.join("report.json").is_file() => args.model.join("images"),
+        None => anyhow::bail!("--images is needed for dense surfaces when --model is not a work folder"),
+    };
+    if !images.is_dir() {
+        anyhow::bail!("--images {}: not a folder", images.display());
+    }
+    let python = Tools { python: args.python.clone(), ..Tools::default() }.python().context("--python")?;
+    let options = DenseOptions { step_px: args.dense_step, ..DenseOptions::default() };
+    let folder = args.out.join("dense");
+    let cancel = crate::signals::cancel_on_signals()?;
+    let visits = [args.from.as_str(), args.to.as_str()];
+    println!("making the dense surfaces of {} and {} (a second or two an image) ...", args.from, args.to);
+    let made = dense_surfaces(&python, (model_dir, model), &images, &visits, &folder, &options, &cancel)?;
+    for Surface { made, reused, .. } in &made {
+        println!(
+            "dense surface of {}: {} points from {} of its {} images ({}, {})",
+            made.visit,
+            made.points,
+            made.fused,
+            made.images,
+            if *reused { "made before" } else { "made" },
+            revisit_colmap::dense::surface_path(&folder, &made.visit).display()
+        );
+    }
+    let records = made.iter().map(|surface| surface.made.clone()).collect();
+    let [from, to] = <[Surface; 2]>::try_from(made).map_err(|_| anyhow::anyhow!("two surfaces were asked for"))?;
+    Ok((Surfaces { from: from.points, to: to.points, shared: 0 }, records))
 }
 
 /// The model to compare and its frame: a work folder's chosen model, or the largest model of
@@ -195,15 +291,22 @@ fn file_safe(name: &str) -> String {
     name.chars().map(|c| if c.is_ascii_alphanumeric() || "-_.".contains(c) { c } else { '_' }).collect()
 }
 
-fn table(map: &ChangeMap, unit: &str, truth: Option<&ChangeScores>) -> String {
+fn table(map: &ChangeMap, surface: SurfaceArg, unit: &str, truth: Option<&ChangeScores>) -> String {
     use std::fmt::Write as _;
     let mut out = String::new();
     let s = &map.scales;
-    let _ = writeln!(
-        out,
-        "change from {} to {}: points seen by {} only {}, by {} only {}, by both {} (not compared)",
-        map.from, map.to, map.from, map.points_from, map.to, map.points_to, map.points_shared
-    );
+    let _ = match surface {
+        SurfaceArg::Dense => writeln!(
+            out,
+            "change from {} to {}: dense surfaces of {} and {} points",
+            map.from, map.to, map.points_from, map.points_to
+        ),
+        SurfaceArg::Sparse => writeln!(
+            out,
+            "change from {} to {}: points seen by {} only {}, by {} only {}, by both {} (not compared)",
+            map.from, map.to, map.from, map.points_from, map.to, map.points_to, map.points_shared
+        ),
+    };
     let _ = writeln!(
         out,
         "altitude {:.3} {unit}; cell {:.3}, cylinder radius {:.3}, normal radius {:.3}, max depth {:.3}",
