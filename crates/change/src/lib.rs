@@ -293,7 +293,7 @@ pub enum ChangeError {
     NoVisit { visit: String, present: String },
     #[error("--from and --to name the same visit ({0})")]
     SameVisit(String),
-    #[error("visit {visit} alone observes {points} points of the model (seen in --min-track images or more): too few to compare")]
+    #[error("the surface of visit {visit} has {points} points (sparse: those only it observes, in --min-track images or more): too few to compare")]
     TooFewPoints { visit: String, points: usize },
     #[error("invalid option {option}: {reason}")]
     BadOption { option: &'static str, reason: String },

@@ -49,7 +49,7 @@ enum Command {
     /// `lod95` and `significant` per point: Open3D, CloudCompare), change_A-B.png (a top-down map,
     /// north of the map frame up, with a scale bar), regions_A-B.csv (id, sign, cells, area,
     /// centre, mean and peak change), change_A-B.json (every figure) and, when dense,
-    /// dense/<visit>.ply (each visit's surface, model frame). Sizes are in the model's
+    /// `dense/<visit>.ply` (each visit's surface, model frame). Sizes are in the model's
     /// unit: metres when it was mapped with navigation priors (`reconstruct --nav`), COLMAP's
     /// arbitrary unit otherwise; the defaults scale with the survey's altitude.
     Change(commands::change::Args),
