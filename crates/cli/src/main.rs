@@ -41,9 +41,11 @@ enum Command {
     /// distance from A's surface to B's along A's normal, each with its 95% level of detection
     /// (LoD95, from the bootstrapped spread of each visit's median in the cylinder and the
     /// registration error between the visits, estimated from the change over the whole overlap:
-    /// its median's size plus its robust spread). Cells beyond their LoD95 are grouped into
-    /// raised and lowered regions; a region is kept when its mean change is at least twice its
-    /// LoD95.
+    /// its median's size plus its robust spread); a cylinder one visit sees only at its rim, or
+    /// where the higher visit also saw the lower one's level (through a branching coral), is not
+    /// measured. Cells beyond their LoD95 are grouped into raised and lowered regions; a region
+    /// of nine cells is kept when its mean change is at least twice its LoD95 (a smaller one
+    /// needs more, a larger one less).
     ///
     /// Writes to OUT: change_A-B.ply (the core points coloured by signed change, with `change`,
     /// `lod95` and `significant` per point: Open3D, CloudCompare), change_A-B.png (a top-down map,
