@@ -5,12 +5,12 @@
 //! (revisit-colmap's `dense`, what `revisit change` uses by default: sparse points sample
 //! texture, and a smooth coral table that a storm removed holds almost none), or
 //! [`sparse_surfaces`]: the model's points tagged with the visits whose images observe them
-//! ([`visits_of_points`]), each visit's the points only it observes (a point tracked across
-//! both is one sample of both surfaces: it would pull their difference to zero and hide the
-//! registration error). The comparison is made in
-//! the manner of M3C2 (Lague, Brodu and Leroux 2013, ISPRS J. 82): on a grid of core points
-//! over the site, a normal is fitted to A's points around each, and the change is the
-//! distance between the medians of A's and B's points along that normal, within a cylinder.
+//! ([`visits_of_points`]), a visit's surface being the points only it observes (a point
+//! tracked across both is one sample of both surfaces: it would pull their difference to zero
+//! and hide the registration error). The comparison is made in the manner of M3C2 (Lague,
+//! Brodu and Leroux 2013, ISPRS J. 82): on a grid of core points over the site, a normal is
+//! fitted to A's points around each, and the change is the distance between the medians of
+//! A's and B's points along that normal, within a cylinder.
 //! Each carries its 95% level of detection, `LoD95 = 1.96 (sqrt(vA + vB) + reg)`, M3C2's form
 //! with two departures made for sparse points: `vA`, `vB` are the variances of each visit's
 //! median by a seeded bootstrap, not `s^2/n` (at a colony's edge a cylinder's points sit on two
