@@ -12,7 +12,7 @@ use nalgebra::Point3;
 use revisit_core::{session_of, Fingerprint, Reconstruction};
 use serde::{Deserialize, Serialize};
 
-use crate::mapper::run_until_cancelled;
+use crate::mapper::{run_until_cancelled, summary_line};
 
 const ENTRY_POINT: &str = include_str!("../python/revisit_dense.py");
 
@@ -137,9 +137,7 @@ pub fn run_dense(
         let stderr = String::from_utf8_lossy(&result.stderr);
         return Err(DenseError::Failed(stderr.lines().last().unwrap_or("no message").to_owned()));
     }
-    let stdout = String::from_utf8_lossy(&result.stdout);
-    let line = stdout.lines().rev().find(|l| l.starts_with('{')).unwrap_or("");
-    let summary: Summary = serde_json::from_str(line).map_err(|e| DenseError::BadSummary(e.to_string()))?;
+    let summary: Summary = summary_line(&result.stdout).map_err(|e| DenseError::BadSummary(e.to_string()))?;
     Ok(summary.visits)
 }
 

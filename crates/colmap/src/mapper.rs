@@ -75,6 +75,12 @@ pub fn run_until_cancelled(mut command: Command, cancelled: &AtomicBool) -> std:
     Ok(Some(Output { status, stdout, stderr }))
 }
 
+/// The last JSON line a script printed on stdout (its summary; logs go to stderr).
+pub(crate) fn summary_line<T: serde::de::DeserializeOwned>(stdout: &[u8]) -> serde_json::Result<T> {
+    let stdout = String::from_utf8_lossy(stdout);
+    serde_json::from_str(stdout.lines().rev().find(|l| l.starts_with('{')).unwrap_or(""))
+}
+
 /// Which COLMAP mapper runs.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "lowercase")]
@@ -315,7 +321,5 @@ pub fn run_mapper(run: &MapperRun<'_>, options: &MapperOptions, cancelled: &Atom
         let stderr_tail = tail.into_iter().rev().collect::<Vec<_>>().join(" | ");
         return Err(MapperError::Failed { code: result.status.code(), stderr_tail });
     }
-    let stdout = String::from_utf8_lossy(&result.stdout);
-    let line = stdout.lines().rev().find(|l| l.starts_with('{')).unwrap_or("");
-    serde_json::from_str(line).map_err(|e| MapperError::BadSummary(e.to_string()))
+    summary_line(&result.stdout).map_err(|e| MapperError::BadSummary(e.to_string()))
 }

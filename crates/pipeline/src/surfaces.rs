@@ -40,39 +40,33 @@ pub fn dense_surfaces(
     options: &DenseOptions,
     cancel: &Cancel,
 ) -> Result<Vec<Surface>, PipelineError> {
-    let record_path = |visit: &str| folder.join(format!("{visit}.json"));
-    let stored = |visit: &str, fingerprint: &str| -> Option<DenseVisit> {
-        let text = std::fs::read_to_string(record_path(visit)).ok()?;
-        let record: Record = serde_json::from_str(&text).ok()?;
-        (record.fingerprint == fingerprint && surface_path(folder, visit).is_file()).then_some(record.made)
-    };
-    let fingerprints: Vec<String> =
-        visits.iter().map(|visit| surface_fingerprint(model, visit, image_root, options)).collect();
-    let missing: Vec<&str> = visits
-        .iter()
-        .zip(&fingerprints)
-        .filter(|(visit, fingerprint)| stored(visit, fingerprint).is_none())
-        .map(|(visit, _)| *visit)
-        .collect();
     // One visit at a time, its record written as soon as it is made: a run stopped during the
     // second visit keeps the first.
-    for (visit, fingerprint) in visits.iter().zip(&fingerprints).filter(|(visit, _)| missing.contains(visit)) {
-        let run = DenseRun { python, model: model_dir, image_root, output: folder, visits: &[visit] };
-        for made in run_dense(&run, options, cancel.flag())? {
-            let path = record_path(&made.visit);
-            let record = Record { fingerprint: fingerprint.clone(), made };
-            let text = serde_json::to_string_pretty(&record).map_err(|e| DenseError::BadSummary(e.to_string()))?;
-            std::fs::write(&path, text + "\n").map_err(|source| PipelineError::Io { path, source })?;
-        }
+    let mut surfaces = Vec::with_capacity(visits.len());
+    for visit in visits {
+        let fingerprint = surface_fingerprint(model, visit, image_root, options);
+        let record_path = folder.join(format!("{visit}.json"));
+        let stored = std::fs::read_to_string(&record_path)
+            .ok()
+            .and_then(|text| serde_json::from_str::<Record>(&text).ok())
+            .filter(|record| record.fingerprint == fingerprint && surface_path(folder, visit).is_file());
+        let (made, reused) = match stored {
+            Some(record) => (record.made, true),
+            None => {
+                let run = DenseRun { python, model: model_dir, image_root, output: folder, visits: &[visit] };
+                let made = run_dense(&run, options, cancel.flag())?
+                    .into_iter()
+                    .find(|made| made.visit == *visit)
+                    .ok_or_else(|| DenseError::Failed(format!("visit {visit}: no surface was made")))?;
+                let record = Record { fingerprint, made };
+                let text = serde_json::to_string_pretty(&record).map_err(|e| DenseError::BadSummary(e.to_string()))?;
+                std::fs::write(&record_path, text + "\n")
+                    .map_err(|source| PipelineError::Io { path: record_path, source })?;
+                (record.made, false)
+            }
+        };
+        let points = read_surface(&surface_path(folder, visit))?;
+        surfaces.push(Surface { points, made, reused });
     }
-    visits
-        .iter()
-        .zip(&fingerprints)
-        .map(|(visit, fingerprint)| {
-            let made = stored(visit, fingerprint)
-                .ok_or_else(|| DenseError::Failed(format!("visit {visit}: no surface was made")))?;
-            let points = read_surface(&surface_path(folder, visit))?;
-            Ok(Surface { points, made, reused: !missing.contains(visit) })
-        })
-        .collect()
+    Ok(surfaces)
 }
