@@ -87,7 +87,8 @@ fn strong_change_links_with_place_recognition_and_roll_search() {
     assert!(6 * far_off < errors.len(), "{far_off} of {} verified pairs far off", errors.len());
 
     // The pairs the consistency check finds at odds with their roll, with their visits' other
-    // pairs or, given the visits' navigation, with where it puts the cameras are far-off ones;
+    // pairs, with the loops they close with each other or, given the visits' navigation, with
+    // where it puts the cameras are far-off ones;
     // asked to, it maps without them (nothing else is redone).
     let nav: Vec<String> = three
         .iter()
@@ -97,7 +98,7 @@ fn strong_change_links_with_place_recognition_and_roll_search() {
     let report = reconstruct(&reef, &three, &vpr, &[&["--set-aside-inconsistent"], &nav[..]].concat());
     let consistency = &report["cross"]["consistency"];
     let count = |key: &str| consistency[key].as_u64().unwrap();
-    let inconsistent = count("roll_disagrees") + count("off_consensus") + count("off_navigation");
+    let inconsistent = count("roll_disagrees") + count("off_consensus") + count("off_navigation") + count("off_loops");
     assert_eq!(count("set_aside"), inconsistent, "{consistency}");
     let store = revisit_store::Store::open_read_only(&vpr.join("database.db")).unwrap();
     let set_aside: Vec<u64> = store.set_aside_pairs().unwrap().into_keys().collect();

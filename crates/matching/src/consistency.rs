@@ -12,7 +12,7 @@
 //! heading relative to the visit), so each cross-visit pair between two visits
 //! implies one heading offset between them, and the true pairs agree on it.
 //!
-//! Two rules on the turn of the pair's inlier matches, and one on where they
+//! Two rules on the turn of the pair's inlier matches, and two on where they
 //! put the other image:
 //! 1. **The roll agrees**: a learned pair matched at roll `r` must turn by
 //!    `-r` within 45 degrees (else another roll was the nearer one, and the
@@ -24,7 +24,7 @@
 //! 3. **The navigation agrees** (when both images have a navigated position):
 //!    a downward camera's centre sits above the ground its image centre shows,
 //!    so the pair's matches say where each image sees the other's centre
-//!    ([`Shift`]). Each visit's pairs calibrate how navigation maps to its
+//!    ([`Motion`]). Each visit's pairs calibrate how navigation maps to its
 //!    pixels (metres per pixel, each image's heading in the navigation frame,
 //!    and the frame's handedness: ENU and NED are mirror images), and a
 //!    cross-visit pair whose matches put the other camera farther from where
@@ -32,6 +32,12 @@
 //!    least 64 pixels' worth) is off the navigation. Wrong pairs of a
 //!    planar seabed pass rules 1 and 2 when they happen to turn right; they
 //!    rarely also move right.
+//! 4. **The loops close** (no navigation needed): a cross-visit pair, another
+//!    one near it, and the two visits' own pairs between their images make a
+//!    loop of [`Similarity`]s that must come back to where it started. Right
+//!    pairs close their loops with each other; wrong pairs, each wrong in its
+//!    own way, miss them. A pair whose loops through trusted pairs (pairs
+//!    whose loops mostly close) mostly miss is off its loops.
 //!
 //! Pure: pairs in, verdicts out; the pipeline sets the rejected pairs aside
 //! in the store.
@@ -46,6 +52,10 @@ pub const DEFAULT_CONSISTENCY_TOLERANCE_DEG: f64 = 30.0;
 /// How far a pair may put the other camera from its navigated position, by
 /// default, in standard deviations of the two positions.
 pub const DEFAULT_NAVIGATION_TOLERANCE_SIGMAS: f64 = 3.0;
+
+/// How far a loop of pairs may miss, by default, as a share of the image
+/// diagonal (100 pixels in a VGA image).
+pub const DEFAULT_LOOP_TOLERANCE: f64 = 0.125;
 
 /// The largest turn (degrees) away from the matched roll: half the spacing of the rolls.
 const ROLL_TOLERANCE_DEG: f64 = 45.0;
@@ -95,28 +105,51 @@ pub fn turn(points1: &[[f64; 2]], points2: &[[f64; 2]]) -> Option<Turn> {
     Some(Turn { deg, agreement: agreeing / changes.len() as f64 })
 }
 
-/// Where a pair's matches put each image's centre in the other image,
-/// pixels from that image's own centre: image 2's centre seen in image 1
-/// (`other_in_1`) and image 1's centre seen in image 2 (`other_in_2`).
+/// The similarity a pair's matches show from image 1's pixels to image 2's:
+/// `p2 = scale * turned(p1) + move_px`, turned by `turn_deg` (as [`Turn::deg`]).
+/// A downward camera over a near-flat seabed sees the ground move so between
+/// two images.
 #[derive(Clone, Copy, Debug, PartialEq)]
-pub struct Shift {
-    pub other_in_1: [f64; 2],
-    pub other_in_2: [f64; 2],
+pub struct Similarity {
+    pub scale: f64,
+    pub turn_deg: f64,
+    pub move_px: [f64; 2],
 }
 
-/// The [`Shift`] of matched points turned by `turn_deg` (as [`turn`] finds
-/// it): the similarity from image 1 to image 2 with that turn, its scale the
-/// median length ratio of the point pairs that agree with the turn and its
-/// move the per-axis median of the matches' residual moves (robust to the
-/// wrong matches a verified pair carries). `centre1` and `centre2` are the
-/// images' centres. `None` with fewer than 8 agreeing point pairs.
-pub fn shift(
-    points1: &[[f64; 2]],
-    points2: &[[f64; 2]],
-    turn_deg: f64,
-    centre1: [f64; 2],
-    centre2: [f64; 2],
-) -> Option<Shift> {
+impl Similarity {
+    pub const IDENTITY: Similarity = Similarity { scale: 1.0, turn_deg: 0.0, move_px: [0.0, 0.0] };
+
+    /// Where image 2 sees image 1's pixel `p`.
+    pub fn apply(&self, p: [f64; 2]) -> [f64; 2] {
+        let q = self.turned(p);
+        [q[0] + self.move_px[0], q[1] + self.move_px[1]]
+    }
+
+    fn turned(&self, p: [f64; 2]) -> [f64; 2] {
+        let (sin, cos) = self.turn_deg.to_radians().sin_cos();
+        [self.scale * (cos * p[0] - sin * p[1]), self.scale * (sin * p[0] + cos * p[1])]
+    }
+
+    /// From image 2's pixels back to image 1's.
+    pub fn inverse(&self) -> Similarity {
+        let back = Similarity { scale: 1.0 / self.scale, turn_deg: wrap(-self.turn_deg), move_px: [0.0, 0.0] };
+        let m = back.turned(self.move_px);
+        Similarity { move_px: [-m[0], -m[1]], ..back }
+    }
+
+    /// This similarity, then `next` (from image 2 on to a third image).
+    pub fn then(&self, next: &Similarity) -> Similarity {
+        let m = next.apply(self.move_px);
+        Similarity { scale: self.scale * next.scale, turn_deg: wrap(self.turn_deg + next.turn_deg), move_px: m }
+    }
+}
+
+/// The [`Similarity`] of matched points turned by `turn_deg` (as [`turn`]
+/// finds it): its scale the median length ratio of the point pairs that agree
+/// with the turn, its move the per-axis median of the matches' residual moves
+/// (robust to the wrong matches a verified pair carries). `None` with fewer
+/// than 8 agreeing point pairs.
+pub fn similarity(points1: &[[f64; 2]], points2: &[[f64; 2]], turn_deg: f64) -> Option<Similarity> {
     let n = points1.len().min(points2.len());
     let mut ratios = Vec::new();
     for k in 0..n {
@@ -137,24 +170,43 @@ pub fn shift(
     if ratios.len() < 8 {
         return None;
     }
-    let scale = median(ratios);
-    let (sin, cos) = turn_deg.to_radians().sin_cos();
-    let similar = |p: [f64; 2]| [scale * (cos * p[0] - sin * p[1]), scale * (sin * p[0] + cos * p[1])];
+    let turned = Similarity { scale: median(ratios), turn_deg, move_px: [0.0, 0.0] };
     let moved: Vec<[f64; 2]> = (0..n)
         .map(|k| {
-            let q = similar(points1[k]);
+            let q = turned.apply(points1[k]);
             [points2[k][0] - q[0], points2[k][1] - q[1]]
         })
         .collect();
-    let t = [median(moved.iter().map(|m| m[0]).collect()), median(moved.iter().map(|m| m[1]).collect())];
-    // Image 1's centre in image 2, and image 2's centre taken back into image 1.
-    let seen = similar(centre1);
-    let back = [centre2[0] - t[0], centre2[1] - t[1]];
-    let unturned = [(cos * back[0] + sin * back[1]) / scale, (-sin * back[0] + cos * back[1]) / scale];
-    Some(Shift {
-        other_in_1: [unturned[0] - centre1[0], unturned[1] - centre1[1]],
-        other_in_2: [seen[0] + t[0] - centre2[0], seen[1] + t[1] - centre2[1]],
-    })
+    let move_px = [median(moved.iter().map(|m| m[0]).collect()), median(moved.iter().map(|m| m[1]).collect())];
+    Some(Similarity { move_px, ..turned })
+}
+
+/// How a pair's matches move image 1 onto image 2, with the images' centres
+/// (pixels), which say where each image sees the other.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Motion {
+    pub similarity: Similarity,
+    pub centre1: [f64; 2],
+    pub centre2: [f64; 2],
+}
+
+impl Motion {
+    /// Where image 1 sees image 2's centre, pixels from its own centre.
+    pub fn other_in_1(&self) -> [f64; 2] {
+        let p = self.similarity.inverse().apply(self.centre2);
+        [p[0] - self.centre1[0], p[1] - self.centre1[1]]
+    }
+
+    /// Where image 2 sees image 1's centre, pixels from its own centre.
+    pub fn other_in_2(&self) -> [f64; 2] {
+        let p = self.similarity.apply(self.centre1);
+        [p[0] - self.centre2[0], p[1] - self.centre2[1]]
+    }
+
+    /// The same motion seen from image 2.
+    fn reversed(&self) -> Motion {
+        Motion { similarity: self.similarity.inverse(), centre1: self.centre2, centre2: self.centre1 }
+    }
 }
 
 fn median(mut values: Vec<f64>) -> f64 {
@@ -174,8 +226,8 @@ pub struct CheckedPair {
     pub kind: PairKind,
     /// From image 1 to image 2.
     pub turn: Turn,
-    /// Where the matches put each image's centre in the other.
-    pub shift: Option<Shift>,
+    /// How the matches move image 1 onto image 2.
+    pub motion: Option<Motion>,
     /// Verified inliers: the pair's weight in the vote.
     pub inliers: usize,
     /// For a learned cross-visit pair: the roll at which the later visit's image was matched.
@@ -193,6 +245,9 @@ pub enum Verdict {
     OffConsensus { offset_deg: f64, consensus_deg: f64 },
     /// Its matches put the other camera `miss_m` from where navigation puts it; `tolerance_m` allowed.
     OffNavigation { miss_m: f64, tolerance_m: f64 },
+    /// Of the loops it closes with the trusted cross-visit pairs near it (or,
+    /// with none near it, with any), `missed` miss and `closed` close.
+    OffLoops { missed: usize, closed: usize },
 }
 
 impl Verdict {
@@ -265,12 +320,15 @@ fn consensus(members: &[Offset], tolerance_deg: f64) -> Option<f64> {
 /// place in the order of visits); an image without one is not checked.
 /// `navigation` holds the images with a navigated position (rule 3; none:
 /// not checked). A pair off the navigation is said so whatever the other rules
-/// say: navigation is evidence from outside the images.
+/// say: navigation is evidence from outside the images. The pairs all three
+/// rules pass then close loops with each other (rule 4;
+/// `loop_tolerance` 0: not checked).
 pub fn check_cross_pairs(
     pairs: &[CheckedPair],
     visit_of: &BTreeMap<ImageId, usize>,
     tolerance_deg: f64,
     navigation: &Navigation,
+    loop_tolerance: f64,
 ) -> Vec<(usize, Verdict)> {
     let Votes { mut verdicts, groups, .. } = votes(pairs, visit_of);
     for members in groups.values() {
@@ -293,6 +351,109 @@ pub fn check_cross_pairs(
         }
     }
     verdicts.sort_by_key(|v| v.0);
+    if loop_tolerance > 0.0 {
+        let voters: Vec<usize> = verdicts.iter().filter(|v| v.1.is_consistent()).map(|v| v.0).collect();
+        for (index, verdict) in loop_verdicts(pairs, visit_of, &voters, loop_tolerance) {
+            if let Ok(at) = verdicts.binary_search_by_key(&index, |v| v.0) {
+                verdicts[at].1 = verdict;
+            }
+        }
+    }
+    verdicts
+}
+
+/// A loop closes through this many trusted pairs or more, and more close than
+/// miss, and the pair is trusted by rule 4.
+const TRUSTED_LOOPS: usize = 2;
+
+/// Rule 4: the loops the cross-visit pairs `voters` (indices into `pairs`)
+/// close with each other. A cross-visit pair from image `a` to image `b`, and
+/// another from `a'` to `b'`, where `a'` is `a` or an image of `a`'s visit
+/// verified with it (and `b'` likewise), make a loop: `a` to `a'` to `b'` to
+/// `b` must land where the pair itself takes `a`'s centre, within
+/// `tolerance` of `b`'s diagonal. Wrong pairs rarely agree with each other,
+/// so a pair is trusted when at least [`TRUSTED_LOOPS`] of its loops close
+/// and more close than miss; a pair whose loops through trusted pairs miss
+/// more than close, or, with no trusted pair near it, which closes no loop
+/// and misses some, is [`Verdict::OffLoops`]. A pair with no loop is not
+/// judged.
+fn loop_verdicts(
+    pairs: &[CheckedPair],
+    visit_of: &BTreeMap<ImageId, usize>,
+    voters: &[usize],
+    tolerance: f64,
+) -> Vec<(usize, Verdict)> {
+    // Each visit's own pairs, both ways.
+    let mut within: BTreeMap<(ImageId, ImageId), Similarity> = BTreeMap::new();
+    for pair in pairs.iter().filter(|p| p.kind == PairKind::Intra) {
+        let Some(motion) = pair.motion else { continue };
+        if visit_of.get(&pair.image_id1).is_some_and(|v| visit_of.get(&pair.image_id2) == Some(v)) {
+            within.insert((pair.image_id1, pair.image_id2), motion.similarity);
+            within.insert((pair.image_id2, pair.image_id1), motion.similarity.inverse());
+        }
+    }
+    let mut near: BTreeMap<ImageId, Vec<ImageId>> = BTreeMap::new();
+    for &(a, b) in within.keys() {
+        near.entry(a).or_default().push(b);
+    }
+    let step = |from: ImageId, to: ImageId| -> Option<Similarity> {
+        match from == to {
+            true => Some(Similarity::IDENTITY),
+            false => within.get(&(from, to)).copied(),
+        }
+    };
+    // The voters from each of their images: (voter, other image, motion from this image).
+    let mut from_image: BTreeMap<ImageId, Vec<(usize, ImageId, Motion)>> = BTreeMap::new();
+    for &index in voters {
+        let pair = &pairs[index];
+        let Some(motion) = pair.motion else { continue };
+        from_image.entry(pair.image_id1).or_default().push((index, pair.image_id2, motion));
+        from_image.entry(pair.image_id2).or_default().push((index, pair.image_id1, motion.reversed()));
+    }
+    // Each voter's loops: (the other voter, whether the loop closes).
+    let mut loops: BTreeMap<usize, Vec<(usize, bool)>> = BTreeMap::new();
+    for &index in voters {
+        let pair = &pairs[index];
+        let (Some(motion), Some(visit_b)) = (pair.motion, visit_of.get(&pair.image_id2)) else { continue };
+        let (a, b) = (pair.image_id1, pair.image_id2);
+        let seen = motion.similarity.apply(motion.centre1);
+        let allowed_px = tolerance * 2.0 * length(motion.centre2);
+        let mut closes = Vec::new();
+        for a2 in std::iter::once(a).chain(near.get(&a).into_iter().flatten().copied()) {
+            let Some(to_a2) = step(a, a2) else { continue };
+            for &(other, b2, other_motion) in from_image.get(&a2).into_iter().flatten() {
+                if other == index || visit_of.get(&b2) != Some(visit_b) {
+                    continue;
+                }
+                let Some(to_b) = step(b2, b) else { continue };
+                let around = to_a2.then(&other_motion.similarity).then(&to_b).apply(motion.centre1);
+                closes.push((other, length([around[0] - seen[0], around[1] - seen[1]]) <= allowed_px));
+            }
+        }
+        loops.insert(index, closes);
+    }
+    let count = |index: usize, among: &dyn Fn(usize) -> bool| -> (usize, usize) {
+        let through: Vec<bool> = loops[&index].iter().filter(|(o, _)| among(*o)).map(|(_, c)| *c).collect();
+        let closed = through.iter().filter(|c| **c).count();
+        (closed, through.len() - closed)
+    };
+    let trusted: std::collections::BTreeSet<usize> = loops
+        .keys()
+        .copied()
+        .filter(|&i| {
+            let (closed, missed) = count(i, &|_| true);
+            closed >= TRUSTED_LOOPS && closed > missed
+        })
+        .collect();
+    let mut verdicts = Vec::new();
+    for &index in loops.keys() {
+        let (closed, missed) = count(index, &|o| trusted.contains(&o));
+        let (closed_any, missed_any) = count(index, &|_| true);
+        if missed > closed || (closed + missed == 0 && closed_any == 0 && missed_any > 0) {
+            let (closed, missed) = if closed + missed > 0 { (closed, missed) } else { (closed_any, missed_any) };
+            verdicts.push((index, Verdict::OffLoops { missed, closed }));
+        }
+    }
     verdicts
 }
 
@@ -368,8 +529,8 @@ fn footings(
 ) -> Vec<BTreeMap<usize, Footing>> {
     let mut samples: BTreeMap<usize, Vec<Sample>> = BTreeMap::new();
     for pair in pairs.iter().filter(|p| p.kind == PairKind::Intra) {
-        let (Some(shift), Some(n1), Some(n2)) =
-            (pair.shift, navigation.get(&pair.image_id1), navigation.get(&pair.image_id2))
+        let (Some(motion), Some(n1), Some(n2)) =
+            (pair.motion, navigation.get(&pair.image_id1), navigation.get(&pair.image_id2))
         else {
             continue;
         };
@@ -377,10 +538,11 @@ fn footings(
             continue;
         };
         let w = [n2.xy_m[0] - n1.xy_m[0], n2.xy_m[1] - n1.xy_m[1]];
-        if length(shift.other_in_1) >= MIN_SHIFT_PX && length(shift.other_in_2) >= MIN_SHIFT_PX {
+        let (seen_in_1, seen_in_2) = (motion.other_in_1(), motion.other_in_2());
+        if length(seen_in_1) >= MIN_SHIFT_PX && length(seen_in_2) >= MIN_SHIFT_PX {
             let list = samples.entry(visit).or_default();
-            list.push(Sample { image: pair.image_id1, seen_px: shift.other_in_1, away_m: w });
-            list.push(Sample { image: pair.image_id2, seen_px: shift.other_in_2, away_m: [-w[0], -w[1]] });
+            list.push(Sample { image: pair.image_id1, seen_px: seen_in_1, away_m: w });
+            list.push(Sample { image: pair.image_id2, seen_px: seen_in_2, away_m: [-w[0], -w[1]] });
         }
     }
     samples.retain(|_, samples| samples.len() >= 6);
@@ -428,9 +590,9 @@ fn navigation_miss(
         return None;
     }
     let positions = &navigation.positions;
-    let (shift, n1, n2) = (pair.shift?, positions.get(&pair.image_id1)?, positions.get(&pair.image_id2)?);
+    let (motion, n1, n2) = (pair.motion?, positions.get(&pair.image_id1)?, positions.get(&pair.image_id2)?);
     let w = [n2.xy_m[0] - n1.xy_m[0], n2.xy_m[1] - n1.xy_m[1]];
-    let sides = [(pair.image_id1, shift.other_in_1, w), (pair.image_id2, shift.other_in_2, [-w[0], -w[1]])];
+    let sides = [(pair.image_id1, motion.other_in_1(), w), (pair.image_id2, motion.other_in_2(), [-w[0], -w[1]])];
     let worst = |footings: &BTreeMap<usize, Footing>| -> Option<(f64, f64)> {
         let mut worst: Option<(f64, f64)> = None;
         for (image, seen_px, w_m) in sides {
@@ -605,8 +767,10 @@ mod tests {
     }
 
     fn pair(image_id1: ImageId, image_id2: ImageId, kind: PairKind, deg: f64, roll: Option<Roll>) -> CheckedPair {
-        CheckedPair { image_id1, image_id2, kind, turn: Turn { deg, agreement: 1.0 }, shift: None, inliers: 50, roll }
+        CheckedPair { image_id1, image_id2, kind, turn: Turn { deg, agreement: 1.0 }, motion: None, inliers: 50, roll }
     }
+
+    const LOOPS: f64 = DEFAULT_LOOP_TOLERANCE;
 
     #[test]
     fn a_pair_off_its_visits_consensus_or_its_roll_is_caught() {
@@ -628,29 +792,37 @@ mod tests {
             // Stored the other way round (image 1 of the pair in the later visit).
             pair(13, 2, PairKind::Cross, wrap(-277.0), Some(Roll::R90)),
         ];
-        let verdicts = check_cross_pairs(&pairs, &visit_of, DEFAULT_CONSISTENCY_TOLERANCE_DEG, &Navigation::default());
+        let verdicts =
+            check_cross_pairs(&pairs, &visit_of, DEFAULT_CONSISTENCY_TOLERANCE_DEG, &Navigation::default(), LOOPS);
         let consistent: Vec<usize> = verdicts.iter().filter(|v| v.1.is_consistent()).map(|v| v.0).collect();
         assert_eq!(consistent, vec![4, 5, 6, 9]);
         assert!(matches!(verdicts[3].1, Verdict::RollDisagrees { roll: Roll::R90, .. }), "{verdicts:?}");
         assert!(matches!(verdicts[4].1, Verdict::OffConsensus { .. }), "{verdicts:?}");
         // Without the chains within the visits, each image is its own part: nothing to vote on.
         pairs.retain(|p| p.kind == PairKind::Cross);
-        let alone = check_cross_pairs(&pairs, &visit_of, DEFAULT_CONSISTENCY_TOLERANCE_DEG, &Navigation::default());
+        let alone =
+            check_cross_pairs(&pairs, &visit_of, DEFAULT_CONSISTENCY_TOLERANCE_DEG, &Navigation::default(), LOOPS);
         assert_eq!(alone.iter().filter(|v| v.1.is_consistent()).count(), 5);
     }
 
     #[test]
-    fn shift_finds_where_each_image_sees_the_other_centre() {
+    fn the_motion_finds_where_each_image_sees_the_other_centre() {
         // `turned` turns about (320, 240) and moves by (10, -10); a third of the matches are wrong.
+        let near = |p: [f64; 2], q: [f64; 2]| (p[0] - q[0]).hypot(p[1] - q[1]) < 1.0;
         for deg in [0.0, 37.0, 183.0] {
             let (a, b) = turned(deg, 3);
             let found = turn(&a, &b).unwrap();
-            let shift = shift(&a, &b, found.deg, [320.0, 240.0], [320.0, 240.0]).unwrap();
+            let similarity = similarity(&a, &b, found.deg).unwrap();
+            let motion = Motion { similarity, centre1: [320.0, 240.0], centre2: [320.0, 240.0] };
             let (sin, cos) = f64::to_radians(deg).sin_cos();
             let back = [cos * -10.0 + sin * 10.0, -sin * -10.0 + cos * 10.0];
-            let near = |p: [f64; 2], q: [f64; 2]| (p[0] - q[0]).hypot(p[1] - q[1]) < 1.0;
-            assert!(near(shift.other_in_2, [10.0, -10.0]), "{deg}: {shift:?}");
-            assert!(near(shift.other_in_1, back), "{deg}: {shift:?}");
+            assert!(near(motion.other_in_2(), [10.0, -10.0]), "{deg}: {motion:?}");
+            assert!(near(motion.other_in_1(), back), "{deg}: {motion:?}");
+            // There and back, or there and on, is one similarity.
+            let p = [100.0, 50.0];
+            assert!(near(similarity.then(&similarity.inverse()).apply(p), p), "{deg}");
+            let twice = similarity.then(&similarity);
+            assert!(near(twice.apply(p), similarity.apply(similarity.apply(p))), "{deg}");
         }
     }
 
@@ -679,11 +851,20 @@ mod tests {
                 false => [cos * x - sin * y, sin * x + cos * y],
             }
         };
+        // The motion from image `a` to image `b`, `w` metres apart.
+        let sighted = |a: ImageId, b: ImageId, w: [f64; 2]| -> Motion {
+            let centre = [320.0, 240.0];
+            let turn_deg = wrap(heading_deg(b) - heading_deg(a));
+            let turned = Similarity { turn_deg, ..Similarity::IDENTITY }.apply(centre);
+            let seen_in_b = seen(b, [-w[0], -w[1]]);
+            let move_px = [centre[0] + seen_in_b[0] - turned[0], centre[1] + seen_in_b[1] - turned[1]];
+            Motion { similarity: Similarity { scale: 1.0, turn_deg, move_px }, centre1: centre, centre2: centre }
+        };
         let pair = |a: ImageId, b: ImageId, kind: PairKind| -> CheckedPair {
             let w = [xy(b)[0] - xy(a)[0], xy(b)[1] - xy(a)[1]];
-            let shift = Shift { other_in_1: seen(a, w), other_in_2: seen(b, [-w[0], -w[1]]) };
+            let motion = sighted(a, b, w);
             let deg = wrap(heading_deg(b) - heading_deg(a));
-            CheckedPair { shift: Some(shift), ..pair(a, b, kind, if mirrored { wrap(-deg) } else { deg }, None) }
+            CheckedPair { motion: Some(motion), ..pair(a, b, kind, if mirrored { wrap(-deg) } else { deg }, None) }
         };
         let mut pairs = Vec::new();
         for base in [0, 10] {
@@ -694,7 +875,7 @@ mod tests {
         pairs.extend([pair(1, 11, PairKind::Cross), pair(2, 12, PairKind::Cross), pair(3, 12, PairKind::Cross)]);
         // Two places 1 m apart that matched coherently: the matches say 0.2 m, turned right.
         let mut wrong = pair(1, 13, PairKind::Cross);
-        wrong.shift = Some(Shift { other_in_1: seen(1, [0.2, 0.0]), other_in_2: seen(13, [-0.2, 0.0]) });
+        wrong.motion = Some(sighted(1, 13, [0.2, 0.0]));
         pairs.push(wrong);
         let positions = visit_of.keys().map(|&id| (id, Navigated { xy_m: xy(id), sigma_m: 0.1 })).collect();
         (pairs, visit_of, Navigation { positions, tolerance_sigmas: DEFAULT_NAVIGATION_TOLERANCE_SIGMAS })
@@ -708,7 +889,7 @@ mod tests {
             let open = footings(&pairs, &visit_of, &navigation.positions);
             assert_eq!(open.len(), if bent { 1 } else { 2 });
             assert!(open.iter().any(|f| f[&0].mirrored == mirrored && f[&1].mirrored == mirrored));
-            let verdicts = check_cross_pairs(&pairs, &visit_of, DEFAULT_CONSISTENCY_TOLERANCE_DEG, &navigation);
+            let verdicts = check_cross_pairs(&pairs, &visit_of, DEFAULT_CONSISTENCY_TOLERANCE_DEG, &navigation, LOOPS);
             let off: Vec<usize> =
                 verdicts.iter().filter(|v| matches!(v.1, Verdict::OffNavigation { .. })).map(|v| v.0).collect();
             assert_eq!(off, vec![13], "mirrored {mirrored}: {verdicts:?}");
@@ -717,8 +898,31 @@ mod tests {
             assert!((miss_m - 0.85f64.hypot(0.22)).abs() < 1e-6, "{miss_m}");
             assert!((tolerance_m - 3.0 * 0.1f64.hypot(0.1)).abs() < 1e-9, "{tolerance_m}");
             navigation.tolerance_sigmas = 0.0;
-            let verdicts = check_cross_pairs(&pairs, &visit_of, DEFAULT_CONSISTENCY_TOLERANCE_DEG, &navigation);
+            let verdicts = check_cross_pairs(&pairs, &visit_of, DEFAULT_CONSISTENCY_TOLERANCE_DEG, &navigation, LOOPS);
             assert!(verdicts.iter().all(|v| !matches!(v.1, Verdict::OffNavigation { .. })), "{verdicts:?}");
         }
+    }
+
+    #[test]
+    fn a_pair_whose_loops_miss_is_caught_without_navigation() {
+        let (mut pairs, visit_of, mut navigation) = navigated_visits(false, true);
+        navigation.tolerance_sigmas = 0.0;
+        let off = |pairs: &[CheckedPair], loops: f64| -> Vec<(usize, Verdict)> {
+            let verdicts = check_cross_pairs(pairs, &visit_of, DEFAULT_CONSISTENCY_TOLERANCE_DEG, &navigation, loops);
+            verdicts.into_iter().filter(|v| !v.1.is_consistent()).collect()
+        };
+        // Pair 13 (images 1 and 13) misses its loops through the three right pairs, each of which
+        // closes two loops with the others.
+        assert_eq!(off(&pairs, LOOPS), vec![(13, Verdict::OffLoops { missed: 3, closed: 0 })]);
+        assert_eq!(off(&pairs, 0.0), vec![]);
+        // Alone with one right pair, the two miss their one loop: neither can be trusted.
+        let two: Vec<CheckedPair> =
+            pairs.iter().filter(|p| p.kind == PairKind::Intra).copied().chain([pairs[10], pairs[13]]).collect();
+        let both =
+            vec![(10, Verdict::OffLoops { missed: 1, closed: 0 }), (11, Verdict::OffLoops { missed: 1, closed: 0 })];
+        assert_eq!(off(&two, LOOPS), both);
+        // Without the pairs within the visits, no loop closes, and nothing is judged.
+        pairs.retain(|p| p.kind == PairKind::Cross);
+        assert_eq!(off(&pairs, LOOPS), vec![]);
     }
 }

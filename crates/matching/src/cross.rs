@@ -18,7 +18,9 @@ use revisit_core::{CrossKey, Keypoint, LearnedFeatures, PairKind, Roll, TwoViewG
 use revisit_onnx::OnnxError;
 use serde::{Deserialize, Serialize};
 
-use crate::consistency::{DEFAULT_CONSISTENCY_TOLERANCE_DEG, DEFAULT_NAVIGATION_TOLERANCE_SIGMAS};
+use crate::consistency::{
+    DEFAULT_CONSISTENCY_TOLERANCE_DEG, DEFAULT_LOOP_TOLERANCE, DEFAULT_NAVIGATION_TOLERANCE_SIGMAS,
+};
 use crate::roll::{
     match_at_prediction, match_with_rolls, unrolled_keypoints, CrossMatch, Prediction, RollSearch, DEFAULT_ROLL_MARGIN,
 };
@@ -65,6 +67,11 @@ pub struct CrossOptions {
     /// two positions is inconsistent ([`crate::consistency`], rule 3); 0 turns
     /// the check off. Default [`DEFAULT_NAVIGATION_TOLERANCE_SIGMAS`].
     pub navigation_tolerance_sigmas: f64,
+    /// A verified cross-visit pair whose loops through the other cross-visit
+    /// pairs miss by more than this share of the image diagonal is
+    /// inconsistent ([`crate::consistency`], rule 4); 0 turns the check off.
+    /// Default [`DEFAULT_LOOP_TOLERANCE`].
+    pub loop_tolerance: f64,
 }
 
 impl Default for CrossOptions {
@@ -77,6 +84,7 @@ impl Default for CrossOptions {
             consistency_tolerance_deg: DEFAULT_CONSISTENCY_TOLERANCE_DEG,
             set_aside_inconsistent: false,
             navigation_tolerance_sigmas: DEFAULT_NAVIGATION_TOLERANCE_SIGMAS,
+            loop_tolerance: DEFAULT_LOOP_TOLERANCE,
         }
     }
 }
@@ -88,6 +96,7 @@ impl CrossOptions {
         check_range("anchor_radius_px", self.anchor_radius_px, 0.0, 100.0, "in [0, 100]")?;
         check_range("consistency_tolerance_deg", self.consistency_tolerance_deg, 1.0, 180.0, "in [1, 180]")?;
         check_range("navigation_tolerance_sigmas", self.navigation_tolerance_sigmas, 0.0, 1e6, "0 (off) or positive")?;
+        check_range("loop_tolerance", self.loop_tolerance, 0.0, 1.0, "in [0, 1]; 0 is off")?;
         self.verify.check()
     }
 }

@@ -15,8 +15,8 @@ mod verify;
 
 pub use anchor::anchor_keypoints;
 pub use consistency::{
-    check_cross_pairs, shift, turn, CheckedPair, Navigated, Navigation, Predictor, Shift, Turn, Verdict,
-    DEFAULT_CONSISTENCY_TOLERANCE_DEG, DEFAULT_NAVIGATION_TOLERANCE_SIGMAS,
+    check_cross_pairs, similarity, turn, CheckedPair, Motion, Navigated, Navigation, Predictor, Similarity, Turn,
+    Verdict, DEFAULT_CONSISTENCY_TOLERANCE_DEG, DEFAULT_LOOP_TOLERANCE, DEFAULT_NAVIGATION_TOLERANCE_SIGMAS,
 };
 pub use cross::{match_learned_pair, CrossOptions, LearnedPairMatch, CROSS_MIN_INLIERS};
 pub use descriptors::{match_descriptors, match_unit_descriptors, MatchOptions};

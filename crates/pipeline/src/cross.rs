@@ -13,7 +13,7 @@ use nalgebra::Point3;
 
 use revisit_core::{pair_id, ImageId, Keypoint, LearnedFeatures, PairKind, Roll};
 use revisit_features::learned::LearnedExtractor;
-use revisit_matching::consistency::{self, CheckedPair, Navigated, Navigation, Predictor, Verdict};
+use revisit_matching::consistency::{self, CheckedPair, Motion, Navigated, Navigation, Predictor, Verdict};
 use revisit_matching::{match_learned_pair, CrossOptions, LearnedPairMatch, LightGlue, Prediction, RollSearch};
 use revisit_places::{nearest, Candidate, CandidateOptions, GlobalDescriptor, OnnxPlaces, Vlad, Vocabulary};
 use revisit_store::{CrossSide, PairRecord, Store};
@@ -581,8 +581,9 @@ impl PairTurns {
                 image_id2: b,
                 kind: record.kind,
                 turn,
-                shift: match (self.centres.get(&a), self.centres.get(&b)) {
-                    (Some(c1), Some(c2)) => consistency::shift(&points1, &points2, turn.deg, *c1, *c2),
+                motion: match (self.centres.get(&a), self.centres.get(&b)) {
+                    (Some(&centre1), Some(&centre2)) => consistency::similarity(&points1, &points2, turn.deg)
+                        .map(|similarity| Motion { similarity, centre1, centre2 }),
                     _ => None,
                 },
                 inliers: record.num_inliers,
@@ -616,9 +617,19 @@ pub struct ConsistencyCounts {
     /// Inconsistent: their matches put the other camera where navigation does not.
     #[serde(default)]
     pub off_navigation: usize,
+    /// Inconsistent: the loops they close with the other cross-visit pairs miss.
+    #[serde(default)]
+    pub off_loops: usize,
     /// Inconsistent pairs set aside (not mapped): every one when asked for,
     /// those off the navigation when mapping change-aware.
     pub set_aside: usize,
+}
+
+impl ConsistencyCounts {
+    /// The inconsistent pairs, whatever the rule.
+    pub fn inconsistent(&self) -> usize {
+        self.roll_disagrees + self.off_consensus + self.off_navigation + self.off_loops
+    }
 }
 
 /// Checks every verified cross-visit pair of `sessions` against its roll,
@@ -647,7 +658,13 @@ pub fn check_consistency(
     let checked = turns.checked();
     let visit_of = &turns.visit_of;
     let navigation = Navigation { positions: navigated(store)?, tolerance_sigmas: options.navigation_tolerance_sigmas };
-    let verdicts = consistency::check_cross_pairs(&checked, visit_of, options.consistency_tolerance_deg, &navigation);
+    let verdicts = consistency::check_cross_pairs(
+        &checked,
+        visit_of,
+        options.consistency_tolerance_deg,
+        &navigation,
+        options.loop_tolerance,
+    );
     let mut aside = store.set_aside_pairs()?;
     let mut counts = ConsistencyCounts { checked: verdicts.len(), ..ConsistencyCounts::default() };
     for (index, verdict) in verdicts {
@@ -667,6 +684,10 @@ pub fn check_consistency(
             Verdict::OffConsensus { offset_deg, consensus_deg } => {
                 counts.off_consensus += 1;
                 format!("heading offset {offset_deg:.0} deg between the visits; their other pairs agree on {consensus_deg:.0}")
+            }
+            Verdict::OffLoops { missed, closed } => {
+                counts.off_loops += 1;
+                format!("{missed} of the {} loops it makes with other cross-visit pairs miss", missed + closed)
             }
         };
         let (a, b) = (&names[&pair.image_id1], &names[&pair.image_id2]);

@@ -153,6 +153,15 @@ pub struct OptionArgs {
     /// ENU or NED). 0 turns the check off.
     #[arg(long, default_value_t = revisit_matching::DEFAULT_NAVIGATION_TOLERANCE_SIGMAS, value_name = "SIGMAS")]
     nav_check: f64,
+    /// A verified cross-visit pair whose loops with the other cross-visit
+    /// pairs miss (image a to image b through another pair and the two
+    /// visits' own pairs must land where the pair itself puts image a's centre,
+    /// within SHARE of the image diagonal) is inconsistent when most of its
+    /// loops through trusted pairs (pairs whose loops mostly close) miss.
+    /// Needs no navigation: wrong pairs rarely agree with each other. 0 turns
+    /// the check off.
+    #[arg(long, default_value_t = revisit_matching::DEFAULT_LOOP_TOLERANCE, value_name = "SHARE")]
+    loop_check: f64,
     /// Images and pairs the learned models work on at once, each on one thread
     /// of ONNX Runtime; 1 = one at a time on every thread; 0 = one per core, as
     /// many as the available memory holds. The results do not depend on it.
@@ -246,6 +255,7 @@ impl OptionArgs {
         cross.consistency_tolerance_deg = self.consistency_tolerance;
         cross.set_aside_inconsistent = self.set_aside_inconsistent;
         cross.navigation_tolerance_sigmas = self.nav_check;
+        cross.loop_tolerance = self.loop_check;
         options.learned_workers = self.learned_workers;
         options.places.candidates.top_k = self.vpr_top_k;
         options.places.candidates.max_distance = self.vpr_max_distance;

@@ -178,17 +178,16 @@ fn print_summary(report: &Report, work: &Path) {
     if !report.rolls.is_empty() {
         println!("cross pairs by roll: {:?}", report.rolls);
     }
-    if let Some(c) = report.cross.consistency.filter(|c| c.roll_disagrees + c.off_consensus + c.off_navigation > 0) {
-        let inconsistent = c.roll_disagrees + c.off_consensus + c.off_navigation;
+    if let Some(c) = report.cross.consistency.filter(|c| c.inconsistent() > 0) {
         let fate = match c.set_aside {
             0 => "mapped all the same (--set-aside-inconsistent sets them aside)".to_owned(),
-            n if n == inconsistent => "set aside, not mapped".to_owned(),
+            n if n == c.inconsistent() => "set aside, not mapped".to_owned(),
             n => format!("{n} off the navigation set aside (change-aware), the others mapped all the same"),
         };
         println!(
             "inconsistent cross pairs: {} at odds with their roll, {} with their visits' other pairs, {} with the \
-             navigation (of {} checked; each is logged): {fate}",
-            c.roll_disagrees, c.off_consensus, c.off_navigation, c.checked
+             navigation, {} with their loops (of {} checked; each is logged): {fate}",
+            c.roll_disagrees, c.off_consensus, c.off_navigation, c.off_loops, c.checked
         );
     }
     println!("models: {} (sizes {:?})", report.models, report.model_sizes);
