@@ -18,6 +18,18 @@ const IMAGES: u64 = 10;
 /// pairs of this reef lie within 9 px, most within 4).
 const FAR_OFF_PAIR_ERROR_PX: f64 = 20.0;
 
+/// A right model agrees with the cross-visit pairs the loops confirmed: most of each visit pair's
+/// confirmed pairs have their matches within the tolerance in it.
+fn assert_placement_not_suspect(report: &serde_json::Value) {
+    let confirmed = report["cross"]["consistency"]["confirmed"].as_u64().unwrap();
+    let placement = report["mapping"]["placement"].as_object().unwrap();
+    println!("{confirmed} cross-visit pairs confirmed by their loops; placement {placement:?}");
+    for (visits, p) in placement {
+        let count = |key: &str| p[key].as_u64().unwrap();
+        assert!(2 * count("agreeing") >= count("measured"), "{visits}: {p}");
+    }
+}
+
 #[test]
 fn strong_change_links_with_place_recognition_and_roll_search() {
     let dir = tempfile::tempdir().unwrap();
@@ -35,6 +47,7 @@ fn strong_change_links_with_place_recognition_and_roll_search() {
     assert_eq!(fully_registered(&report), two, "{report:#}");
     let error = cross_error_px(&reef, &two, &vpr).expect("clicks scored");
     assert!(error < 2.0, "median cross-session reprojection error {error} px");
+    assert_placement_not_suspect(&report);
     let rolls = report["rolls"].as_object().unwrap();
     assert!(rolls.keys().any(|r| r != "0"), "no pair needed a roll: {report:#}");
     let cross_tried = report["pairs"]["cross"]["tried"].as_u64().unwrap();
@@ -63,6 +76,7 @@ fn strong_change_links_with_place_recognition_and_roll_search() {
     assert!(third["registered"].as_u64().unwrap() + 1 >= IMAGES, "{report:#}");
     let error = cross_error_px(&reef, &three, &vpr).expect("clicks scored");
     assert!(error < 2.0, "median cross-session reprojection error {error} px after the third visit");
+    assert_placement_not_suspect(&report);
 
     // Most of the third visit's pairs are matched at the roll their visits' other pairs predict,
     // and few of them are far off (the full roll search lets a third through: 26 of 78 on a

@@ -44,7 +44,7 @@
 
 use std::collections::BTreeMap;
 
-use revisit_core::{ImageId, PairKind, Roll};
+use revisit_core::{ImageId, PairKind, Reconstruction, Roll};
 
 /// How far (degrees) a pair's implied offset may be from its visits' consensus, by default.
 pub const DEFAULT_CONSISTENCY_TOLERANCE_DEG: f64 = 30.0;
@@ -239,6 +239,10 @@ pub struct CheckedPair {
 pub enum Verdict {
     /// Agrees with its roll and with its visits' consensus (or there is no consensus to check).
     Consistent,
+    /// Consistent, and confirmed by its loops (rule 4): `closed` of them close, and more close
+    /// than miss. A confirmed pair is evidence of where its two images sit, against which a
+    /// model can be checked ([`placement_error_px`]).
+    Confirmed { closed: usize },
     /// Its matches turn the later image by `turn_deg`, not by about `-roll`.
     RollDisagrees { turn_deg: f64, roll: Roll },
     /// Its offset between the two visits is `offset_deg`; the other pairs agree on `consensus_deg`.
@@ -252,7 +256,7 @@ pub enum Verdict {
 
 impl Verdict {
     pub fn is_consistent(&self) -> bool {
-        matches!(self, Verdict::Consistent)
+        matches!(self, Verdict::Consistent | Verdict::Confirmed { .. })
     }
 }
 
@@ -362,8 +366,10 @@ pub fn check_cross_pairs(
     verdicts
 }
 
-/// A loop closes through this many trusted pairs or more, and more close than
-/// miss, and the pair is trusted by rule 4.
+/// A pair whose loops close this many times or more, and more often than
+/// they miss, is trusted by rule 4; a pair with no trusted pair near it must
+/// miss this many loops (and close none) to be off them: one miss between two
+/// pairs does not say which of them is wrong.
 const TRUSTED_LOOPS: usize = 2;
 
 /// Rule 4: the loops the cross-visit pairs `voters` (indices into `pairs`)
@@ -375,8 +381,8 @@ const TRUSTED_LOOPS: usize = 2;
 /// so a pair is trusted when at least [`TRUSTED_LOOPS`] of its loops close
 /// and more close than miss; a pair whose loops through trusted pairs miss
 /// more than close, or, with no trusted pair near it, which closes no loop
-/// and misses some, is [`Verdict::OffLoops`]. A pair with no loop is not
-/// judged.
+/// and misses at least [`TRUSTED_LOOPS`], is [`Verdict::OffLoops`]. A pair
+/// with no loop is not judged.
 fn loop_verdicts(
     pairs: &[CheckedPair],
     visit_of: &BTreeMap<ImageId, usize>,
@@ -447,9 +453,13 @@ fn loop_verdicts(
         .collect();
     let mut verdicts = Vec::new();
     for &index in loops.keys() {
+        if trusted.contains(&index) {
+            verdicts.push((index, Verdict::Confirmed { closed: count(index, &|_| true).0 }));
+            continue;
+        }
         let (closed, missed) = count(index, &|o| trusted.contains(&o));
         let (closed_any, missed_any) = count(index, &|_| true);
-        if missed > closed || (closed + missed == 0 && closed_any == 0 && missed_any > 0) {
+        if missed > closed || (closed + missed == 0 && closed_any == 0 && missed_any >= TRUSTED_LOOPS) {
             let (closed, missed) = if closed + missed > 0 { (closed, missed) } else { (closed_any, missed_any) };
             verdicts.push((index, Verdict::OffLoops { missed, closed }));
         }
@@ -607,6 +617,72 @@ fn navigation_miss(
     };
     let (miss_m, floor_m) = footings.iter().filter_map(worst).min_by(|a, b| a.0.total_cmp(&b.0))?;
     Some((miss_m, (navigation.tolerance_sigmas * n1.sigma_m.hypot(n2.sigma_m)).max(floor_m)))
+}
+
+/// Matches a model triangulated on fewer than this many points of a pair do
+/// not say where the model puts the pair's images.
+const MIN_PLACEMENT_POINTS: usize = 5;
+
+/// How far a model puts a pair's matches from each other (pixels): for each
+/// match (`[keypoint of image 1, keypoint of image 2]`) whose keypoint in one
+/// image the model triangulated, the distance from that point, projected into
+/// the other image, to the match's keypoint there; the median over both
+/// directions. A model that placed the two images where their matches say
+/// gives about the matches' own error; one that placed them at odds with
+/// them, far more. `None` when an image is not in the model or fewer than 5
+/// matches were triangulated.
+pub fn placement_error_px(
+    model: &Reconstruction,
+    image1: ImageId,
+    image2: ImageId,
+    matches: &[[u32; 2]],
+) -> Option<f64> {
+    let (one, two) = (model.images.get(&image1)?, model.images.get(&image2)?);
+    let mut errors = Vec::new();
+    for m in matches {
+        let (Some(o1), Some(o2)) = (one.points2d.get(m[0] as usize), two.points2d.get(m[1] as usize)) else {
+            continue;
+        };
+        for (seen, other, other_image) in [(o1, o2, two), (o2, o1, one)] {
+            let Some(point) = seen.point3d_id.and_then(|id| model.points3d.get(&id)) else { continue };
+            if let Some(projected) = model.project(other_image, &point.xyz) {
+                errors.push((projected - other.xy).norm());
+            }
+        }
+    }
+    (errors.len() >= MIN_PLACEMENT_POINTS).then(|| median(errors))
+}
+
+/// A confirmed pair's matches may lie this share of the image diagonal apart
+/// in a model (40 pixels in a VGA image) and the model still agrees with it.
+pub const PLACEMENT_TOLERANCE: f64 = 0.05;
+
+/// How a model holds the confirmed cross-visit pairs between two of its visits.
+#[derive(Clone, Copy, Debug, Default, PartialEq, serde::Serialize, serde::Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Placement {
+    /// Confirmed pairs with both images in the model and enough of their matches triangulated.
+    pub measured: usize,
+    /// Of those, the pairs whose matches the model puts within their tolerance of each other.
+    pub agreeing: usize,
+    /// The median over the measured pairs of how far apart the model puts their matches, pixels.
+    pub median_px: f64,
+}
+
+impl Placement {
+    /// From each measured pair's [`placement_error_px`] and its tolerance (pixels).
+    pub fn of(errors: &[(f64, f64)]) -> Placement {
+        Placement {
+            measured: errors.len(),
+            agreeing: errors.iter().filter(|(e, tolerance)| e <= tolerance).count(),
+            median_px: if errors.is_empty() { 0.0 } else { median(errors.iter().map(|e| e.0).collect()) },
+        }
+    }
+
+    /// Most of the pairs that confirm the two visits' link disagree with where the model put them.
+    pub fn is_suspect(&self) -> bool {
+        self.measured >= 2 && 2 * self.agreeing < self.measured
+    }
 }
 
 fn length(v: [f64; 2]) -> f64 {
@@ -914,15 +990,75 @@ mod tests {
         // Pair 13 (images 1 and 13) misses its loops through the three right pairs, each of which
         // closes two loops with the others.
         assert_eq!(off(&pairs, LOOPS), vec![(13, Verdict::OffLoops { missed: 3, closed: 0 })]);
+        let verdicts = check_cross_pairs(&pairs, &visit_of, DEFAULT_CONSISTENCY_TOLERANCE_DEG, &navigation, LOOPS);
+        let confirmed: Vec<usize> =
+            verdicts.iter().filter(|v| matches!(v.1, Verdict::Confirmed { closed: 2 })).map(|v| v.0).collect();
+        assert_eq!(confirmed, vec![10, 11, 12]);
         assert_eq!(off(&pairs, 0.0), vec![]);
-        // Alone with one right pair, the two miss their one loop: neither can be trusted.
+        // Alone with one right pair, the two miss their one loop: one miss does not say which is
+        // wrong, and neither is judged.
         let two: Vec<CheckedPair> =
             pairs.iter().filter(|p| p.kind == PairKind::Intra).copied().chain([pairs[10], pairs[13]]).collect();
-        let both =
-            vec![(10, Verdict::OffLoops { missed: 1, closed: 0 }), (11, Verdict::OffLoops { missed: 1, closed: 0 })];
-        assert_eq!(off(&two, LOOPS), both);
+        assert_eq!(off(&two, LOOPS), vec![]);
         // Without the pairs within the visits, no loop closes, and nothing is judged.
         pairs.retain(|p| p.kind == PairKind::Cross);
         assert_eq!(off(&pairs, LOOPS), vec![]);
+    }
+
+    /// Two downward cameras 0.5 m apart over 40 ground points, the second
+    /// placed `misplaced` (a turn about the vertical, degrees) away from where
+    /// its matches put it; only image 1's keypoints are triangulated.
+    fn two_cameras(misplaced_deg: f64) -> (Reconstruction, Vec<[u32; 2]>) {
+        use nalgebra::{Point2, Point3, UnitQuaternion, Vector3};
+        use revisit_core::{Camera, CameraModel, Image, Observation, Point3D, Rigid3};
+        let camera = Camera::new(1, CameraModel::Pinhole, 640, 480, vec![500.0, 500.0, 320.0, 240.0]).unwrap();
+        let ground: Vec<Point3<f64>> =
+            (0..40).map(|k| Point3::new(-1.0 + 0.05 * f64::from(k), 0.4 * f64::from(k % 5) - 0.8, 2.0)).collect();
+        let pose = |x: f64, deg: f64| {
+            Rigid3::new(UnitQuaternion::from_euler_angles(0.0, 0.0, deg.to_radians()), Vector3::new(-x, 0.0, 0.0))
+        };
+        let (true_pose, placed) = (pose(0.5, 0.0), pose(0.5, misplaced_deg));
+        let mut model = Reconstruction::default();
+        model.cameras.insert(1, camera.clone());
+        let seen = |pose: &Rigid3| -> Vec<Point2<f64>> {
+            ground.iter().map(|p| camera.img_from_cam(&(*pose * *p)).unwrap()).collect()
+        };
+        let (in1, in2) = (seen(&Rigid3::identity()), seen(&true_pose));
+        let observe = |xy: &[Point2<f64>], triangulated: bool| -> Vec<Observation> {
+            let id = |k: usize| triangulated.then_some(k as u64 + 1);
+            xy.iter().enumerate().map(|(k, xy)| Observation { xy: *xy, point3d_id: id(k) }).collect()
+        };
+        let image = |image_id, cam_from_world, points2d| Image {
+            image_id,
+            camera_id: 1,
+            name: format!("s{image_id}/a.png"),
+            cam_from_world,
+            points2d,
+        };
+        model.images.insert(1, image(1, Rigid3::identity(), observe(&in1, true)));
+        model.images.insert(2, image(2, placed, observe(&in2, false)));
+        for (k, xyz) in ground.iter().enumerate() {
+            model.points3d.insert(k as u64 + 1, Point3D { xyz: *xyz, rgb: [0; 3], error: 0.0, track: vec![] });
+        }
+        (model, (0..40).map(|k| [k, k]).collect())
+    }
+
+    #[test]
+    fn a_model_that_placed_two_images_at_odds_with_their_matches_is_suspect() {
+        let (model, matches) = two_cameras(0.0);
+        let right = placement_error_px(&model, 1, 2, &matches).unwrap();
+        assert!(right < 1e-6, "{right}");
+        let (model, matches) = two_cameras(20.0);
+        let turned = placement_error_px(&model, 1, 2, &matches).unwrap();
+        assert!(turned > 50.0, "{turned}");
+        // Too few triangulated matches, or an image not in the model: nothing to say.
+        assert_eq!(placement_error_px(&model, 1, 2, &matches[..4]), None);
+        assert_eq!(placement_error_px(&model, 1, 3, &matches), None);
+        let tolerance = PLACEMENT_TOLERANCE * 800.0;
+        let placement = Placement::of(&[(right, tolerance), (turned, tolerance), (turned, tolerance)]);
+        assert_eq!((placement.measured, placement.agreeing, placement.median_px), (3, 1, turned));
+        assert!(placement.is_suspect());
+        assert!(!Placement::of(&[(right, tolerance), (turned, tolerance)]).is_suspect());
+        assert!(!Placement::of(&[(turned, tolerance)]).is_suspect(), "one pair is not enough to say");
     }
 }

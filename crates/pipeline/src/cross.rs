@@ -11,9 +11,9 @@ use std::path::Path;
 
 use nalgebra::Point3;
 
-use revisit_core::{pair_id, ImageId, Keypoint, LearnedFeatures, PairKind, Roll};
+use revisit_core::{pair_id, ImageId, Keypoint, LearnedFeatures, PairKind, Reconstruction, Roll};
 use revisit_features::learned::LearnedExtractor;
-use revisit_matching::consistency::{self, CheckedPair, Motion, Navigated, Navigation, Predictor, Verdict};
+use revisit_matching::consistency::{self, CheckedPair, Motion, Navigated, Navigation, Placement, Predictor, Verdict};
 use revisit_matching::{match_learned_pair, CrossOptions, LearnedPairMatch, LightGlue, Prediction, RollSearch};
 use revisit_places::{nearest, Candidate, CandidateOptions, GlobalDescriptor, OnnxPlaces, Vlad, Vocabulary};
 use revisit_store::{CrossSide, PairRecord, Store};
@@ -620,6 +620,9 @@ pub struct ConsistencyCounts {
     /// Inconsistent: the loops they close with the other cross-visit pairs miss.
     #[serde(default)]
     pub off_loops: usize,
+    /// Confirmed: consistent, and most of their loops close.
+    #[serde(default)]
+    pub confirmed: usize,
     /// Inconsistent pairs set aside (not mapped): every one when asked for,
     /// those off the navigation when mapping change-aware.
     pub set_aside: usize,
@@ -650,7 +653,7 @@ pub fn check_consistency(
     sessions: &[Session],
     options: &CrossOptions,
     change_aware: bool,
-) -> Result<ConsistencyCounts, PipelineError> {
+) -> Result<Consistency, PipelineError> {
     let names: BTreeMap<ImageId, String> =
         sessions.iter().flat_map(|s| &s.images).map(|i| (i.id, i.name.to_string())).collect();
     let mut turns = PairTurns::new(sessions);
@@ -667,12 +670,18 @@ pub fn check_consistency(
     );
     let mut aside = store.set_aside_pairs()?;
     let mut counts = ConsistencyCounts { checked: verdicts.len(), ..ConsistencyCounts::default() };
+    let mut confirmed = Vec::new();
     for (index, verdict) in verdicts {
         let pair = &checked[index];
         let id = pair_id(pair.image_id1, pair.image_id2);
         let off_navigation = matches!(verdict, Verdict::OffNavigation { .. });
         let reason = match verdict {
             Verdict::Consistent => continue,
+            Verdict::Confirmed { .. } => {
+                counts.confirmed += 1;
+                confirmed.push((pair.image_id1, pair.image_id2));
+                continue;
+            }
             Verdict::OffNavigation { miss_m, tolerance_m } => {
                 counts.off_navigation += 1;
                 format!("its matches put the other camera {miss_m:.2} m from its navigated position ({tolerance_m:.2} m allowed)")
@@ -705,7 +714,44 @@ pub fn check_consistency(
     for id in aside.into_keys() {
         store.restore_set_aside(id)?;
     }
-    Ok(counts)
+    Ok(Consistency { counts, confirmed })
+}
+
+/// What [`check_consistency`] found: the counts, and the confirmed pairs.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct Consistency {
+    pub counts: ConsistencyCounts,
+    /// The cross-visit pairs the loops confirm, `(image 1, image 2)` as stored.
+    pub confirmed: Vec<(ImageId, ImageId)>,
+}
+
+/// Per pair of visits in `model` (`"s1-s2"`, in visit order), how the model
+/// holds the `confirmed` cross-visit pairs between them
+/// ([`consistency::placement_error_px`]). The loops confirm a pair without the
+/// model, so a model whose placement of two visits disagrees with most of
+/// them placed the visits wrong: a wrong pair bent it, or it joined the
+/// visits where no pair says they meet.
+pub fn check_placement(
+    store: &Store,
+    sessions: &[Session],
+    model: &Reconstruction,
+    confirmed: &[(ImageId, ImageId)],
+) -> Result<BTreeMap<String, Placement>, PipelineError> {
+    let session_of: BTreeMap<ImageId, &Session> =
+        sessions.iter().flat_map(|s| s.images.iter().map(move |i| (i.id, s))).collect();
+    let mut errors: BTreeMap<String, Vec<(f64, f64)>> = BTreeMap::new();
+    for &(a, b) in confirmed {
+        let (Some(sa), Some(sb), Some(image_b)) = (session_of.get(&a), session_of.get(&b), model.images.get(&b)) else {
+            continue;
+        };
+        let matches = store.verified_matches(pair_id(a, b))?;
+        let Some(error_px) = consistency::placement_error_px(model, a, b, &matches) else { continue };
+        let Some(camera) = model.cameras.get(&image_b.camera_id) else { continue };
+        let tolerance_px = consistency::PLACEMENT_TOLERANCE * f64::from(camera.width).hypot(f64::from(camera.height));
+        let (first, second) = if sa.visit <= sb.visit { (sa, sb) } else { (sb, sa) };
+        errors.entry(format!("{}-{}", first.name, second.name)).or_default().push((error_px, tolerance_px));
+    }
+    Ok(errors.into_iter().map(|(visits, errors)| (visits, Placement::of(&errors))).collect())
 }
 
 /// The images' navigated positions across the ground, from the store's pose

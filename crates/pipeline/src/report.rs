@@ -7,6 +7,7 @@ use std::path::{Path, PathBuf};
 
 use revisit_colmap::{ChangeAware, NavigationOffset};
 use revisit_core::{CameraId, PairKind};
+use revisit_matching::consistency::Placement;
 use serde::{Deserialize, Serialize};
 
 use crate::cross::ConsistencyCounts;
@@ -118,6 +119,10 @@ pub struct MappingReport {
     /// cross-visit matches the joint model kept and dropped.
     #[serde(default)]
     pub change_aware: Option<ChangeAware>,
+    /// Per pair of visits of the chosen model (`"s1-s2"`): how it holds the cross-visit pairs
+    /// the loops confirmed before mapping. A suspect placement is logged.
+    #[serde(default)]
+    pub placement: BTreeMap<String, Placement>,
 }
 
 /// The frame of a model's coordinates.

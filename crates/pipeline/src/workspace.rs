@@ -341,11 +341,14 @@ impl Workspace {
                 figures.run("learned_matching", || self.match_learned(learned, places.as_ref(), progress, cancel))?,
             );
         }
+        let mut confirmed = Vec::new();
         if self.sessions.len() >= 2 {
             let (options, change_aware) = (&self.options.learned_matching, self.options.mapper.change_aware);
-            cross_report.consistency = Some(figures.run("consistency", || {
+            let consistency = figures.run("consistency", || {
                 cross::check_consistency(&mut self.store, &self.sessions, options, change_aware)
-            })?);
+            })?;
+            cross_report.consistency = Some(consistency.counts);
+            confirmed = consistency.confirmed;
         }
         let outcome = figures.run("mapping", || self.map(cancel))?;
         // COLMAP maps in its own process.
@@ -364,6 +367,13 @@ impl Workspace {
             }
         }
         let chosen_model = chosen.and_then(|k| outcome.models.get(k));
+        let placement = match chosen_model.filter(|_| !confirmed.is_empty()) {
+            Some(model) => {
+                let model = revisit_colmap::read_model(&model.path)?;
+                cross::check_placement(&self.store, &self.sessions, &model, &confirmed)?
+            }
+            None => BTreeMap::new(),
+        };
         let report = Report {
             unlinked_sessions: export::unlinked_sessions(&sessions),
             sessions,
@@ -387,6 +397,7 @@ impl Workspace {
                 navigation_rms_m: chosen_model.and_then(|m| m.navigation_rms_m),
                 navigation_offsets: chosen_model.map(|m| m.navigation_offsets.clone()).unwrap_or_default(),
                 change_aware: outcome.change_aware.clone(),
+                placement,
             },
             seconds: figures.seconds,
             peak_rss_mib: figures.peak_rss_mib,

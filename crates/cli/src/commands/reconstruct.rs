@@ -219,6 +219,15 @@ fn print_summary(report: &Report, work: &Path) {
             offset.offset_sigmas.unwrap_or_default()
         );
     }
+    for (visits, p) in report.mapping.placement.iter().filter(|(_, p)| p.is_suspect()) {
+        println!(
+            "warning: visits {visits} sit at odds with {} of the {} cross-visit pairs whose loops confirm them \
+             (their matches {:.0} px apart in the model, median): their placement is suspect",
+            p.measured - p.agreeing,
+            p.measured,
+            p.median_px
+        );
+    }
     for name in &report.unlinked_sessions {
         println!(
             "warning: session {name} could not be linked to the others: fewer than half its images are in \
