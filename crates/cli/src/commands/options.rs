@@ -158,8 +158,10 @@ pub struct OptionArgs {
     /// visits' own pairs must land where the pair itself puts image a's centre,
     /// within SHARE of the image diagonal) is inconsistent when most of its
     /// loops through trusted pairs (pairs whose loops mostly close) miss.
-    /// Needs no navigation: wrong pairs rarely agree with each other. 0 turns
-    /// the check off.
+    /// Needs no navigation: wrong pairs rarely agree with each other. The
+    /// trusted pairs are confirmed, and after mapping the model is checked
+    /// against them: two visits it placed at odds with most of their confirmed
+    /// pairs are warned about. 0 turns both checks off.
     #[arg(long, default_value_t = revisit_matching::DEFAULT_LOOP_TOLERANCE, value_name = "SHARE")]
     loop_check: f64,
     /// Images and pairs the learned models work on at once, each on one thread
