@@ -120,7 +120,7 @@ pub struct MappingReport {
     #[serde(default)]
     pub change_aware: Option<ChangeAware>,
     /// Per pair of visits of the chosen model (`"s1-s2"`): how it holds the cross-visit pairs
-    /// the loops confirmed before mapping. A suspect placement is logged.
+    /// the loops confirmed before mapping (`reconstruct` warns of a suspect one).
     #[serde(default)]
     pub placement: BTreeMap<String, Placement>,
 }
