@@ -443,22 +443,20 @@ fn loop_verdicts(
         let closed = through.iter().filter(|c| **c).count();
         (closed, through.len() - closed)
     };
-    let trusted: std::collections::BTreeSet<usize> = loops
-        .keys()
-        .copied()
-        .filter(|&i| {
-            let (closed, missed) = count(i, &|_| true);
-            closed >= TRUSTED_LOOPS && closed > missed
-        })
+    // (closed, missed) over all of each voter's loops.
+    let all: BTreeMap<usize, (usize, usize)> = loops.keys().map(|&i| (i, count(i, &|_| true))).collect();
+    let trusted: std::collections::BTreeSet<usize> = all
+        .iter()
+        .filter(|(_, &(closed, missed))| closed >= TRUSTED_LOOPS && closed > missed)
+        .map(|(&i, _)| i)
         .collect();
     let mut verdicts = Vec::new();
-    for &index in loops.keys() {
+    for (&index, &(closed_any, missed_any)) in &all {
         if trusted.contains(&index) {
-            verdicts.push((index, Verdict::Confirmed { closed: count(index, &|_| true).0 }));
+            verdicts.push((index, Verdict::Confirmed { closed: closed_any }));
             continue;
         }
         let (closed, missed) = count(index, &|o| trusted.contains(&o));
-        let (closed_any, missed_any) = count(index, &|_| true);
         if missed > closed || (closed + missed == 0 && closed_any == 0 && missed_any >= TRUSTED_LOOPS) {
             let (closed, missed) = if closed + missed > 0 { (closed, missed) } else { (closed_any, missed_any) };
             verdicts.push((index, Verdict::OffLoops { missed, closed }));
