@@ -57,7 +57,7 @@ fn strong_change_links_with_place_recognition_and_roll_search() {
     // extended. Its pairs are matched at the roll the verified pairs predict (the first few
     // searched).
     let before = report;
-    let report = reconstruct(&reef, &three, &vpr, &["--roll-search", "predict"]);
+    let report = reconstruct(&reef, &three, &vpr, &[]);
     assert_eq!(report["features"]["done"], IMAGES, "{report:#}");
     assert_eq!(report["features"]["reused"], 2 * IMAGES);
     // Learned features: roll 0 for the first visit, four rolls for later ones.

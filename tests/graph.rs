@@ -56,8 +56,10 @@ fn offline() -> &'static Offline {
     static OFFLINE: OnceLock<Offline> = OnceLock::new();
     OFFLINE.get_or_init(|| {
         let work = reef().parent().unwrap().join("offline");
+        // A matcher node searches each pair's roll (it does not see the verified pairs that
+        // would predict it): so does this reconstruction.
         for k in 1..=VISITS.len() {
-            reconstruct(reef(), &VISITS[..k], &work, &["--vpr-top-k", "3"]);
+            reconstruct(reef(), &VISITS[..k], &work, &["--vpr-top-k", "3", "--roll-search", "probe"]);
         }
         let report = read_json(&work.join("report.json"));
         assert_eq!(report["models"], 1, "{report:#}");

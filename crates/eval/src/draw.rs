@@ -38,6 +38,20 @@ pub fn vline(img: &mut RgbImage, x: u32, y_from: u32, y_to: u32, color: Rgb<u8>)
     }
 }
 
+/// A straight line between two points (inclusive), `width` pixels thick;
+/// pixels outside the image are skipped.
+pub fn line(img: &mut RgbImage, from: (f64, f64), to: (f64, f64), width: u32, color: Rgb<u8>) {
+    let steps = (to.0 - from.0).abs().max((to.1 - from.1).abs()).ceil().max(1.0) as usize;
+    for k in 0..=steps {
+        let t = k as f64 / steps as f64;
+        let (x, y) = (from.0 + t * (to.0 - from.0), from.1 + t * (to.1 - from.1));
+        if x >= 0.0 && y >= 0.0 {
+            let (x, y) = (x.round() as u32, y.round() as u32);
+            fill_rect(img, x, y, x + width - 1, y + width - 1, color);
+        }
+    }
+}
+
 /// A filled box, corners inclusive.
 pub fn fill_rect(img: &mut RgbImage, left: u32, top: u32, right: u32, bottom: u32, color: Rgb<u8>) {
     for y in top..=bottom {

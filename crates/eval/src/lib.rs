@@ -24,7 +24,7 @@ mod truth;
 
 pub use clicks::{parse_points_csv, write_points_csv, ClickPair, MalformedRow, PointsCsv};
 pub use pairs::{median_epipolar_error_px, MAX_RIGHT_PAIR_ERROR_PX};
-pub use plot::{histogram, HistogramOptions};
+pub use plot::{histogram, log_log, HistogramOptions, Series};
 pub use revisit_core::{umeyama, AlignError, Similarity};
 pub use score::{score, ClickResult, ScoreOptions, Scores, SkipReason, Summary};
 pub use truth::{

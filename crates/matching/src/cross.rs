@@ -40,7 +40,7 @@ pub const DEFAULT_ANCHOR_RADIUS_PX: f32 = 1.5;
 #[serde(default, deny_unknown_fields)]
 pub struct CrossOptions {
     /// How the roll of the second image of a cross-visit pair is chosen.
-    /// Default: the probe ([`RollSearch::DEFAULT`]). Pairs within a visit
+    /// Default: the prediction ([`RollSearch::DEFAULT`]). Pairs within a visit
     /// are matched at roll 0.
     pub roll_search: RollSearch,
     /// The winning roll's inliers must be at least this many times the

@@ -53,10 +53,11 @@ impl Default for RollSearch {
 }
 
 impl RollSearch {
-    /// The default: the probe. Prediction is about 3x faster and keeps wrong
-    /// pairs out, but on one strong-change survey those wrong pairs were all
-    /// that brought an image into the model (see the README).
-    pub const DEFAULT: RollSearch = RollSearch::PROBE;
+    /// The default: the prediction. About 3x faster than the probe and it
+    /// keeps pairs at a roll other than their visits' out (most of them
+    /// wrong); an image that only such a pair linked may stay out of the
+    /// model (see the README).
+    pub const DEFAULT: RollSearch = RollSearch::PREDICT;
 
     /// The probe with [`DEFAULT_PROBE_BUDGET`] keypoints a side.
     pub const PROBE: RollSearch = RollSearch::Probe { budget: DEFAULT_PROBE_BUDGET };

@@ -5,6 +5,7 @@ mod colmap;
 mod compare;
 mod live;
 mod matching;
+mod scaling;
 mod sift;
 
 #[derive(clap::Subcommand)]
@@ -22,7 +23,8 @@ pub enum Bench {
     /// The cross-visit strategies (sift, learned-all, learned-cross, vpr) on one
     /// synthetic dataset: matching time, pairs, inliers, sessions in one model,
     /// cross-visit error; place-recognition recall; roll-search agreement and
-    /// cost; learned extraction speed.
+    /// cost; learned extraction speed. With --scale, the scaling study over
+    /// survey sizes (JSON and a log-log plot).
     Matching(matching::Args),
     /// The published comparison on a synthetic dataset: Revisit's joint
     /// reconstruction, joint SIFT and two ablations against the post-hoc

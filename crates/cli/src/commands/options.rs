@@ -18,8 +18,8 @@ enum RollSearchArg {
     /// heading offset, chained through each session's own pairs): one match a
     /// pair, two when the predicted turn falls between two rolls; pairs before
     /// there is agreement are probed. About 3x faster than the probe and keeps
-    /// wrong-roll pairs out, so an image that only such a pair brought into
-    /// the model may stay out.
+    /// pairs at a roll other than their visits' out (most of them wrong), so
+    /// an image that only such a pair brought into the model may stay out.
     Predict,
     /// Decide the roll on the strongest keypoints of each image, then match
     /// once in full (in full at every roll if no roll wins by --roll-margin).
@@ -93,7 +93,7 @@ pub struct OptionArgs {
     learned: LearnedMethod,
     /// How the roll (0/90/180/270 degrees) of the second image of a
     /// cross-session pair is chosen.
-    #[arg(long, value_enum, default_value = "probe")]
+    #[arg(long, value_enum, default_value = "predict")]
     roll_search: RollSearchArg,
     /// Place recognition: each image of a later session is paired with its N
     /// nearest images of earlier sessions.

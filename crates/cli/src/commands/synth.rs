@@ -125,7 +125,27 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         growth: args.growth,
         cover: args.cover,
     };
-    let survey = revisit_synth::plan(&options).context("planning the survey")?;
+    let survey = write_survey(&options, &args.out, args.eval_pairs)?;
+    let sessions_dir = args.out.join("sessions");
+    if args.bag {
+        anyhow::ensure!(
+            args.bag_rate.is_finite() && args.bag_rate > 0.0,
+            "--bag-rate must be a positive number of frames per second"
+        );
+        for s in 0..survey.sessions().len() {
+            let written =
+                write_bag(&survey, s, &sessions_dir, &args.out.join("bags"), args.bag_rate, args.bag_navigation)?;
+            info!("wrote {} messages to {}", written.messages, written.dir.display());
+        }
+    }
+    info!("wrote {}", args.out.display());
+    Ok(())
+}
+
+/// Renders the survey `options` describe into `out` (images, truth and
+/// navigation, as `revisit synth` writes them).
+pub fn write_survey(options: &SynthOptions, out: &Path, eval_pairs: usize) -> anyhow::Result<Survey> {
+    let survey = revisit_synth::plan(options).context("planning the survey")?;
     info!(
         "synthetic reef {:.1} m across, {} sessions x {} images, change {}, seed {}",
         survey.site_size_m(),
@@ -134,8 +154,8 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         options.change,
         options.seed
     );
-    let sessions_dir = args.out.join("sessions");
-    let truth_dir = args.out.join("truth");
+    let sessions_dir = out.join("sessions");
+    let truth_dir = out.join("truth");
     for session in survey.sessions() {
         let dir = sessions_dir.join(&session.name);
         std::fs::create_dir_all(&dir).with_context(|| format!("creating {}", dir.display()))?;
@@ -162,28 +182,16 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     })?;
     bar.finish_and_clear();
     let render_secs = render_start.elapsed().as_secs_f64();
-
-    write_truth(&survey, &truth_dir, args.eval_pairs)?;
-    write_navigation(&survey, &args.out.join("nav"))?;
-    if args.bag {
-        anyhow::ensure!(
-            args.bag_rate.is_finite() && args.bag_rate > 0.0,
-            "--bag-rate must be a positive number of frames per second"
-        );
-        for s in 0..survey.sessions().len() {
-            let written =
-                write_bag(&survey, s, &sessions_dir, &args.out.join("bags"), args.bag_rate, args.bag_navigation)?;
-            info!("wrote {} messages to {}", written.messages, written.dir.display());
-        }
-    }
     info!(
-        "rendered {count} images in {render_secs:.1} s = {:.1} img/s ({}x{}, scene build {build_secs:.1} s); wrote {}",
+        "rendered {count} images in {render_secs:.1} s = {:.1} img/s ({}x{}, scene build {build_secs:.1} s)",
         count as f64 / render_secs.max(1e-9),
         options.width,
         options.height,
-        args.out.display()
     );
-    Ok(())
+
+    write_truth(&survey, &truth_dir, eval_pairs)?;
+    write_navigation(&survey, &out.join("nav"))?;
+    Ok(survey)
 }
 
 /// One visit as a rosbag2 bag: images, camera info, odometry, navigation and visit markers.

@@ -15,6 +15,7 @@ use std::time::Instant;
 use anyhow::{ensure, Context, Result};
 use revisit_core::{session_of, ImageId, PairKind, Roll};
 use revisit_eval::{median_epipolar_error_px, MAX_RIGHT_PAIR_ERROR_PX};
+use revisit_matching::roll::unrolled_keypoints;
 use revisit_matching::{CrossOptions, RollSearch};
 use revisit_pipeline::ingest::{scan_session, SessionSpec};
 use revisit_pipeline::learned::LearnedMethod;
@@ -33,8 +34,8 @@ const MIN_PLACE_OVERLAP: f64 = 0.3;
 /// The goal: `vpr` at most this share of `learned-all`'s matching time.
 const MAX_VPR_TIME_SHARE: f64 = 0.10;
 /// The goal: roll search at most this many times the cost of one match.
-const MAX_ROLL_COST: f64 = 1.5;
-/// The goal: the probe picks the full search's roll on this share of pairs.
+const MAX_ROLL_COST: f64 = 1.3;
+/// The goal: the roll chosen is the full search's on this share of the pairs it verifies.
 const MIN_ROLL_AGREEMENT: f64 = 0.95;
 /// A mapped pair this far off its epipolar lines (median, pixels) shows another place.
 const FAR_WRONG_PAIR_ERROR_PX: f64 = 20.0;
@@ -42,21 +43,38 @@ const FAR_WRONG_PAIR_ERROR_PX: f64 = 20.0;
 #[derive(clap::Args)]
 pub struct Args {
     /// A dataset made by `revisit synth`: sessions/NAME/*.png and truth/.
-    #[arg(long, value_name = "DIR")]
-    dataset: PathBuf,
+    #[arg(long, value_name = "DIR", required_unless_present = "scale")]
+    dataset: Option<PathBuf>,
     /// Work folder: one reconstruction per strategy in WORK/STRATEGY
-    /// (default: DATASET/bench). Re-running reuses what is there.
+    /// (default: DATASET/bench; with --scale, bench-scaling). Re-running
+    /// reuses what is there.
     #[arg(long, value_name = "WORK")]
-    work: Option<PathBuf>,
+    pub(super) work: Option<PathBuf>,
+    /// The scaling study instead of one dataset: a synthetic survey of 3
+    /// visits x N images at strong change (seed 0) for each N, made in
+    /// WORK/N/reef; each strategy run on it, or estimated from a random
+    /// sample of its pairs when its learned matching would take longer than
+    /// --budget-minutes. Writes WORK/scaling.json and WORK/scaling.png
+    /// (matching time against images, log-log).
+    #[arg(long, value_delimiter = ',', value_name = "N,...", conflicts_with = "dataset")]
+    pub(super) scale: Vec<usize>,
+    /// The scaling study: a strategy whose learned matching would take longer
+    /// than this is estimated, not run.
+    #[arg(long, default_value_t = 60.0, value_name = "MINUTES")]
+    pub(super) budget_minutes: f64,
+    /// The scaling study: pairs timed for a strategy's estimate (and to
+    /// decide whether it fits the budget).
+    #[arg(long, default_value_t = 16, value_name = "N")]
+    pub(super) sample_pairs: usize,
     /// The strategies, in the order they run.
     #[arg(long, value_delimiter = ',', default_value = "sift,learned-all,learned-cross,vpr", value_parser = cross_strategies())]
-    strategies: Vec<CrossStrategy>,
+    pub(super) strategies: Vec<CrossStrategy>,
     /// SIFT features per image (all strategies).
     #[arg(long, default_value_t = 1024, value_name = "N")]
-    max_features: usize,
+    pub(super) max_features: usize,
     /// Place-recognition candidates per query image (`vpr`).
     #[arg(long, default_value_t = 5, value_name = "N")]
-    vpr_top_k: usize,
+    pub(super) vpr_top_k: usize,
     /// Images timed for learned extraction (ALIKED and XFeat).
     #[arg(long, default_value_t = 10, value_name = "N")]
     extraction_images: usize,
@@ -64,19 +82,19 @@ pub struct Args {
     #[arg(long, value_name = "FILE")]
     json: Option<PathBuf>,
     #[command(flatten)]
-    tools: ToolArgs,
+    pub(super) tools: ToolArgs,
 }
 
 #[derive(Serialize)]
-struct StrategyFigures {
-    strategy: String,
+pub(super) struct StrategyFigures {
+    pub(super) strategy: String,
     /// SIFT matching + place recognition + learned matching (learned
     /// extraction apart, in `learned_features_secs`).
-    matching_secs: f64,
-    learned_features_secs: f64,
-    pairs_matched: usize,
+    pub(super) matching_secs: f64,
+    pub(super) learned_features_secs: f64,
+    pub(super) pairs_matched: usize,
     cross_pairs_matched: usize,
-    cross_pairs_verified: usize,
+    pub(super) cross_pairs_verified: usize,
     /// Verified cross-visit pairs set aside by the consistency check.
     cross_pairs_set_aside: usize,
     /// Verified cross-visit pairs COLMAP maps with, and how many of them are
@@ -86,9 +104,9 @@ struct StrategyFigures {
     far_wrong_cross_pairs_mapped: usize,
     cross_inliers: usize,
     sessions: usize,
-    sessions_in_chosen_model: usize,
+    pub(super) sessions_in_chosen_model: usize,
     models: usize,
-    median_cross_error_px: Option<f64>,
+    pub(super) median_cross_error_px: Option<f64>,
     clicks_scored: usize,
 }
 
@@ -105,6 +123,21 @@ struct RollFigures {
     pairs: usize,
     /// Pairs the full search verifies (a roll to agree on).
     verified_by_full: usize,
+    /// Of those, the ones right by the truth (median epipolar error at most
+    /// [`MAX_RIGHT_PAIR_ERROR_PX`]).
+    right_verified_by_full: usize,
+    /// The pairs the `vpr` run (the default roll choice: predicted from the
+    /// visits' verified pairs) verified, right by the truth, predicted.
+    verified_by_default: usize,
+    right_verified_by_default: usize,
+    predicted_by_default: usize,
+    /// The default's roll is the full search's: share of the pairs the full
+    /// search verifies, and of those both verify.
+    default_same_roll_share_of_verified: f64,
+    default_same_roll_share_of_both: f64,
+    /// The `vpr` run's learned matching time per cross-visit pair (stored,
+    /// verified and checked: the whole cost).
+    default_secs: f64,
     same_roll_share_of_verified: f64,
     same_roll_share_of_all: f64,
     probe_fell_back: usize,
@@ -134,46 +167,62 @@ struct Figures {
 }
 
 pub fn run(args: Args) -> Result<()> {
-    let sessions_dir = args.dataset.join("sessions");
-    let truth_dir = args.dataset.join("truth");
-    let session_names = super::session_names(&args.dataset)?;
-    let work = args.work.clone().unwrap_or_else(|| args.dataset.join("bench"));
+    let Some(dataset) = args.dataset.clone() else { return super::scaling::run(&args) };
+    let sessions_dir = dataset.join("sessions");
+    let truth_dir = dataset.join("truth");
+    let work = args.work.clone().unwrap_or_else(|| dataset.join("bench"));
 
     let mut figures = Figures {
-        dataset: args.dataset.clone(),
+        dataset: dataset.clone(),
         strategies: Vec::new(),
         places: None,
         roll_search: None,
         extraction: Vec::new(),
     };
-    let camera = super::calibrated_camera(&truth_dir)?;
+    let session_names = super::session_names(&dataset)?;
     let cancel = crate::signals::cancel_on_signals()?;
     for &strategy in &args.strategies {
         let name = strategy.name();
         let out = work.join(name);
-        let mut options = ReconstructOptions { cross: strategy, ..ReconstructOptions::default() };
-        options.features.sift.max_num_features = args.max_features;
-        options.places.candidates.top_k = args.vpr_top_k;
-        if let Some(camera) = &camera {
-            options.cameras.calibrated.insert(String::new(), camera.clone());
-        }
-        println!("== {name}");
-        let mut workspace = Workspace::open(&out, options, args.tools.tools())?;
-        for session in &session_names {
-            let spec = SessionSpec { name: session.clone(), dir: sessions_dir.join(session) };
-            workspace.add_session(scan_session(&spec)?)?;
-        }
-        let report = workspace.run(&Bars::default(), &cancel).with_context(|| format!("strategy {name}"))?;
-        figures.strategies.push(strategy_figures(name, &report, &out, &truth_dir)?);
+        let (report, figures_of_run) = run_strategy(&args, strategy, &dataset, &out, &cancel)?;
+        figures.strategies.push(figures_of_run);
         if strategy == CrossStrategy::Vpr {
             figures.places = Some(place_figures(&report, &out, &truth_dir)?);
-            figures.roll_search = Some(roll_figures(&out, &args.tools)?);
+            figures.roll_search = Some(roll_figures(&report, &out, &truth_dir, &args.tools)?);
         }
     }
     figures.extraction = extraction_figures(&sessions_dir, &session_names, args.extraction_images, &args.tools)?;
 
     print_figures(&figures);
     super::write_json(args.json.as_deref(), &figures)
+}
+
+/// One strategy's reconstruction of `dataset` in `out`, as `revisit
+/// reconstruct` would run it with the bench's options, and its figures.
+pub(super) fn run_strategy(
+    args: &Args,
+    strategy: CrossStrategy,
+    dataset: &Path,
+    out: &Path,
+    cancel: &revisit_pipeline::Cancel,
+) -> Result<(Report, StrategyFigures)> {
+    let name = strategy.name();
+    let truth_dir = dataset.join("truth");
+    let mut options = ReconstructOptions { cross: strategy, ..ReconstructOptions::default() };
+    options.features.sift.max_num_features = args.max_features;
+    options.places.candidates.top_k = args.vpr_top_k;
+    if let Some(camera) = super::calibrated_camera(&truth_dir)? {
+        options.cameras.calibrated.insert(String::new(), camera);
+    }
+    println!("== {name}");
+    let mut workspace = Workspace::open(out, options, args.tools.tools())?;
+    for session in super::session_names(dataset)? {
+        let spec = SessionSpec { dir: dataset.join("sessions").join(&session), name: session };
+        workspace.add_session(scan_session(&spec)?)?;
+    }
+    let report = workspace.run(&Bars::default(), cancel).with_context(|| format!("strategy {name}"))?;
+    let figures = strategy_figures(name, &report, out, &truth_dir)?;
+    Ok((report, figures))
 }
 
 fn strategy_figures(name: &str, report: &Report, out: &Path, truth: &Path) -> Result<StrategyFigures> {
@@ -185,7 +234,7 @@ fn strategy_figures(name: &str, report: &Report, out: &Path, truth: &Path) -> Re
         Some(model) => cross_error(model, truth)?,
         None => (None, 0),
     };
-    let errors = mapped_pair_errors(&store, truth)?;
+    let errors = mapped_pair_errors(&store, &TruthPairs::open(&store, truth)?)?;
     let wrong_over = |px: f64| errors.iter().filter(|e| **e > px).count();
     Ok(StrategyFigures {
         strategy: name.to_owned(),
@@ -209,35 +258,50 @@ fn strategy_figures(name: &str, report: &Report, out: &Path, truth: &Path) -> Re
 
 /// The median epipolar error under the true poses (`truth/`, a COLMAP text
 /// model) of the inliers of every cross-visit pair COLMAP maps with.
-fn mapped_pair_errors(store: &Store, truth: &Path) -> Result<Vec<f64>> {
-    let truth_model = revisit_colmap::read_model(truth)?;
-    let names: BTreeMap<ImageId, String> = store.image_ids()?.into_iter().map(|(name, id)| (id, name)).collect();
+fn mapped_pair_errors(store: &Store, truth: &TruthPairs) -> Result<Vec<f64>> {
     let mut errors = Vec::new();
     for record in store.pair_records()?.iter().filter(|r| r.kind == PairKind::Cross && r.num_inliers > 0) {
         let (a, b) = (record.image_id1, record.image_id2);
         let Some((_, inliers)) = store.two_view_geometry(revisit_core::pair_id(a, b))? else { continue };
-        let image = |id: ImageId| {
-            let name = names.get(&id).with_context(|| format!("image {id} has no name"))?;
-            let image = truth_model.image_by_name(name).with_context(|| format!("{}: no {name}", truth.display()))?;
-            let camera = truth_model.cameras.get(&image.camera_id).context("truth: an image without its camera")?;
-            let keypoints = store.read_keypoints(id)?;
-            anyhow::Ok((image, camera, keypoints))
-        };
-        let ((image1, camera1, keypoints1), (image2, camera2, keypoints2)) = (image(a)?, image(b)?);
+        let (keypoints1, keypoints2) = (store.read_keypoints(a)?, store.read_keypoints(b)?);
         let points: Vec<([f64; 2], [f64; 2])> = inliers
             .iter()
-            .filter_map(|&[i, j]| {
-                let (p, q) = (keypoints1.get(i as usize)?, keypoints2.get(j as usize)?);
-                Some(([f64::from(p.x), f64::from(p.y)], [f64::from(q.x), f64::from(q.y)]))
-            })
+            .filter_map(|&[i, j]| Some((keypoints1.get(i as usize)?, keypoints2.get(j as usize)?)))
+            .map(|(p, q)| ([f64::from(p.x), f64::from(p.y)], [f64::from(q.x), f64::from(q.y)]))
             .collect();
-        let cameras = [camera1, camera2];
-        if let Some(error) = median_epipolar_error_px(cameras, &image1.cam_from_world, &image2.cam_from_world, &points)
-        {
+        if let Some(error) = truth.error_px(a, b, &points)? {
             errors.push(error);
         }
     }
     Ok(errors)
+}
+
+/// The truth's poses and cameras by the store's image ids: how far a pair's
+/// matches lie from their true epipolar lines.
+struct TruthPairs {
+    model: revisit_core::Reconstruction,
+    names: BTreeMap<ImageId, String>,
+    dir: PathBuf,
+}
+
+impl TruthPairs {
+    fn open(store: &Store, truth: &Path) -> Result<TruthPairs> {
+        let model = revisit_colmap::read_model(truth)?;
+        let names = store.image_ids()?.into_iter().map(|(name, id)| (id, name)).collect();
+        Ok(TruthPairs { model, names, dir: truth.to_path_buf() })
+    }
+
+    /// The median epipolar error (pixels of image `b`) of `points` (pixels of `a`, of `b`).
+    fn error_px(&self, a: ImageId, b: ImageId, points: &[([f64; 2], [f64; 2])]) -> Result<Option<f64>> {
+        let image = |id: ImageId| {
+            let name = self.names.get(&id).with_context(|| format!("image {id} has no name"))?;
+            let image = self.model.image_by_name(name).with_context(|| format!("{}: no {name}", self.dir.display()))?;
+            let camera = self.model.cameras.get(&image.camera_id).context("truth: an image without its camera")?;
+            anyhow::Ok((image, camera))
+        };
+        let ((image1, camera1), (image2, camera2)) = (image(a)?, image(b)?);
+        Ok(median_epipolar_error_px([camera1, camera2], &image1.cam_from_world, &image2.cam_from_world, points))
+    }
 }
 
 /// Median cross-session reprojection error of `model` over every click file
@@ -330,17 +394,27 @@ fn place_figures(report: &Report, out: &Path, truth: &Path) -> Result<PlaceFigur
     })
 }
 
-/// Probe against full roll search on the `vpr` run's cross-visit pairs, with
-/// the features it stored.
-fn roll_figures(out: &Path, tools: &ToolArgs) -> Result<RollFigures> {
+/// The `vpr` run's rolls (the default: predicted) and the probe against the
+/// full roll search on its cross-visit pairs, with the features it stored;
+/// which verified pairs are right, by the truth.
+fn roll_figures(report: &Report, out: &Path, truth: &Path, tools: &ToolArgs) -> Result<RollFigures> {
     let method = LearnedMethod::default();
     let (_, mut learned) = tools.open(method)?;
     let store = Store::open_read_only(&out.join("database.db"))?;
+    let truth = TruthPairs::open(&store, truth)?;
     let pairs: Vec<_> = store.pair_records()?.into_iter().filter(|r| r.kind == PairKind::Cross).collect();
     let CrossOptions { verify, roll_margin: margin, .. } = CrossOptions::default();
+    let default_errors = mapped_pair_errors(&store, &truth)?;
     let mut figures = RollFigures {
         pairs: pairs.len(),
         verified_by_full: 0,
+        right_verified_by_full: 0,
+        verified_by_default: pairs.iter().filter(|r| r.num_inliers > 0).count(),
+        right_verified_by_default: default_errors.iter().filter(|e| **e <= MAX_RIGHT_PAIR_ERROR_PX).count(),
+        predicted_by_default: pairs.iter().filter(|r| r.predicted_roll_deg.is_some()).count(),
+        default_same_roll_share_of_verified: 0.0,
+        default_same_roll_share_of_both: 0.0,
+        default_secs: report.seconds.get("learned_matching").copied().unwrap_or(0.0) / pairs.len().max(1) as f64,
         same_roll_share_of_verified: 0.0,
         same_roll_share_of_all: 0.0,
         probe_fell_back: 0,
@@ -357,7 +431,8 @@ fn roll_figures(out: &Path, tools: &ToolArgs) -> Result<RollFigures> {
         nearest(&query, &database, &CandidateOptions { top_k: 1, max_distance: None }).first().map(|c| c.roll)
     };
     let (mut same_verified, mut same_all, mut place_same) = (0, 0, 0);
-    let bar = crate::progress::bar(pairs.len() as u64, "roll search: probe vs full");
+    let (mut default_same, mut both, mut default_same_both) = (0, 0, 0);
+    let bar = crate::progress::bar(pairs.len() as u64, "roll search: default and probe vs full");
     for pair in &pairs {
         let a = store.read_learned_features(pair.image_id1, method.name(), 0)?;
         let b_by_roll = Roll::ALL
@@ -381,12 +456,30 @@ fn roll_figures(out: &Path, tools: &ToolArgs) -> Result<RollFigures> {
             figures.verified_by_full += 1;
             same_verified += usize::from(agree);
             place_same += usize::from(place_roll(pair.image_id1, pair.image_id2) == Some(full.roll));
+            let default_agrees = i64::from(pair.roll_deg) == i64::from(full.roll.degrees());
+            default_same += usize::from(default_agrees);
+            if pair.num_inliers > 0 {
+                both += 1;
+                default_same_both += usize::from(default_agrees);
+            }
+            let (keypoints1, keypoints2) = (unrolled_keypoints(&a, Roll::R0), unrolled_keypoints(&chosen.1, full.roll));
+            let points: Vec<([f64; 2], [f64; 2])> = full
+                .geometry
+                .inlier_matches
+                .iter()
+                .filter_map(|&[i, j]| Some((keypoints1.get(i as usize)?, keypoints2.get(j as usize)?)))
+                .map(|(p, q)| ([f64::from(p.x), f64::from(p.y)], [f64::from(q.x), f64::from(q.y)]))
+                .collect();
+            let error = truth.error_px(pair.image_id1, pair.image_id2, &points)?;
+            figures.right_verified_by_full += usize::from(error.is_some_and(|e| e <= MAX_RIGHT_PAIR_ERROR_PX));
         }
         bar.inc(1);
     }
     bar.finish_and_clear();
     let n = pairs.len().max(1) as f64;
     figures.same_roll_share_of_verified = same_verified as f64 / figures.verified_by_full.max(1) as f64;
+    figures.default_same_roll_share_of_verified = default_same as f64 / figures.verified_by_full.max(1) as f64;
+    figures.default_same_roll_share_of_both = default_same_both as f64 / both.max(1) as f64;
     figures.same_roll_share_of_all = same_all as f64 / n;
     figures.place_roll_share_of_verified = place_same as f64 / figures.verified_by_full.max(1) as f64;
     figures.one_match_secs /= n;
@@ -486,6 +579,21 @@ fn print_figures(f: &Figures) {
     }
     if let Some(r) = &f.roll_search {
         println!(
+            "default roll (predicted on {} of {} pairs): the full search's roll on {:.1}% of the {} pairs it \
+             verifies, {:.1}% of those both verify (goal >= {:.0}%); verified: default {} ({} right), full search \
+             {} ({} right; right = median epipolar error <= {MAX_RIGHT_PAIR_ERROR_PX} px by the truth)",
+            r.predicted_by_default,
+            r.pairs,
+            100.0 * r.default_same_roll_share_of_verified,
+            r.verified_by_full,
+            100.0 * r.default_same_roll_share_of_both,
+            100.0 * MIN_ROLL_AGREEMENT,
+            r.verified_by_default,
+            r.right_verified_by_default,
+            r.verified_by_full,
+            r.right_verified_by_full
+        );
+        println!(
             "roll search on {} pairs: probe picks the full search's roll on {:.1}% of the {} it verifies (goal >= {:.0}%), {:.1}% of all; fell back {} times",
             r.pairs,
             100.0 * r.same_roll_share_of_verified,
@@ -499,12 +607,15 @@ fn print_figures(f: &Figures) {
             100.0 * r.place_roll_share_of_verified
         );
         println!(
-            "roll search cost per pair: one match {:.2} s, full search {:.2} s ({:.2}x), probe {:.2} s ({:.2}x; goal <= {MAX_ROLL_COST}x)",
+            "roll search cost per pair: one match {:.2} s, full search {:.2} s ({:.2}x), probe {:.2} s ({:.2}x), \
+             default {:.2} s ({:.2}x, the vpr run's whole learned matching a pair; goal <= {MAX_ROLL_COST}x)",
             r.one_match_secs,
             r.full_search_secs,
             r.full_search_secs / r.one_match_secs.max(1e-9),
             r.probe_search_secs,
-            r.probe_search_secs / r.one_match_secs.max(1e-9)
+            r.probe_search_secs / r.one_match_secs.max(1e-9),
+            r.default_secs,
+            r.default_secs / r.one_match_secs.max(1e-9)
         );
     }
     for e in &f.extraction {
