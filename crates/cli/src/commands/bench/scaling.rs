@@ -18,7 +18,7 @@ use revisit_eval::{log_log, Series};
 use revisit_matching::{CrossOptions, RollSearch};
 use revisit_pipeline::CrossStrategy;
 use revisit_synth::{ChangeGrade, SynthOptions};
-use serde::Serialize;
+use serde::{Deserialize, Serialize};
 
 use super::matching::{run_strategy, Args, StrategyFigures};
 
@@ -29,7 +29,7 @@ const VISITS: usize = 3;
 const SEED: u64 = 0;
 
 /// One strategy at one size: measured by a whole run, or estimated.
-#[derive(Serialize)]
+#[derive(Clone, Serialize, Deserialize)]
 struct Row {
     images_per_visit: usize,
     images: usize,
@@ -51,10 +51,10 @@ struct Row {
     secs_per_sampled_pair: Option<f64>,
 }
 
-#[derive(Serialize)]
+#[derive(Serialize, Deserialize)]
 struct Study {
     visits: usize,
-    change: &'static str,
+    change: String,
     seed: u64,
     budget_minutes: f64,
     rows: Vec<Row>,
@@ -66,13 +66,26 @@ pub fn run(args: &Args) -> Result<()> {
     ensure!(args.sample_pairs >= 1, "--sample-pairs must be at least 1");
     let work = args.work.clone().unwrap_or_else(|| PathBuf::from("bench-scaling"));
     let cancel = crate::signals::cancel_on_signals()?;
-    let mut study =
-        Study { visits: VISITS, change: "strong", seed: SEED, budget_minutes: args.budget_minutes, rows: Vec::new() };
+    let mut study = Study {
+        visits: VISITS,
+        change: "strong".to_owned(),
+        seed: SEED,
+        budget_minutes: args.budget_minutes,
+        rows: Vec::new(),
+    };
+    // A study run again keeps the rows it measured (a resumed run would time only what was left).
+    let measured_before = measured_rows(&work.join("scaling.json"))?;
     for &n in &args.scale {
         let dataset = survey(&work.join(n.to_string()), n)?;
         let mut sample = Sample::open(args, &dataset)?;
         for &strategy in &args.strategies {
             let name = strategy.name();
+            if let Some(row) = measured_before.iter().find(|r| r.images_per_visit == n && r.strategy == name) {
+                println!("== {name} at {VISITS} x {n}: measured before");
+                print_row(row);
+                study.rows.push(row.clone());
+                continue;
+            }
             let learned_pairs = learned_pairs(strategy, n, args.vpr_top_k);
             let per_pair = if learned_pairs > 0 { Some(sample.secs_per_pair(strategy)?) } else { None };
             let projected_secs = per_pair.map_or(0.0, |secs| secs * learned_pairs as f64);
@@ -111,6 +124,17 @@ pub fn run(args: &Args) -> Result<()> {
     print_summary(&study);
     println!("wrote {} and {}", work.join("scaling.json").display(), work.join("scaling.png").display());
     Ok(())
+}
+
+/// The measured rows of the study in `path`, if there is one.
+fn measured_rows(path: &Path) -> Result<Vec<Row>> {
+    if !path.is_file() {
+        return Ok(Vec::new());
+    }
+    let text = std::fs::read_to_string(path).with_context(|| path.display().to_string())?;
+    let study: Study =
+        serde_json::from_str(&text).with_context(|| format!("{}: not a scaling study", path.display()))?;
+    Ok(study.rows.into_iter().filter(|r| !r.estimated).collect())
 }
 
 /// The survey of `n` images a visit in `dir/reef`, rendered unless a whole
@@ -228,6 +252,12 @@ impl Sample {
             return Ok(*secs);
         }
         let pairs = self.pairs(strategy);
+        // Every image extracted first: the extractor's threads would otherwise still be
+        // spinning while a match is timed.
+        for &(i, j) in &pairs {
+            self.features(i)?;
+            self.features(j)?;
+        }
         let CrossOptions { verify, roll_margin, .. } = CrossOptions::default();
         // ONNX Runtime plans its kernels on the first call: one match untimed.
         if let Some(&(i, j)) = pairs.first() {
