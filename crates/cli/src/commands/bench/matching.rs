@@ -55,7 +55,8 @@ pub struct Args {
     /// WORK/N/reef; each strategy run on it, or estimated from a random
     /// sample of its pairs when its learned matching would take longer than
     /// --budget-minutes. Writes WORK/scaling.json and WORK/scaling.png
-    /// (matching time against images, log-log).
+    /// (matching time against images, log-log). Run again, it keeps the rows
+    /// it measured; a strategy it did not finish is run again from the start.
     #[arg(long, value_delimiter = ',', value_name = "N,...", conflicts_with = "dataset")]
     pub(super) scale: Vec<usize>,
     /// The scaling study: a strategy whose learned matching would take longer

@@ -57,6 +57,11 @@ struct Study {
     change: String,
     seed: u64,
     budget_minutes: f64,
+    /// The options a measured row was made with (a row made with others is not kept).
+    #[serde(default)]
+    max_features: usize,
+    #[serde(default)]
+    vpr_top_k: usize,
     rows: Vec<Row>,
 }
 
@@ -71,10 +76,12 @@ pub fn run(args: &Args) -> Result<()> {
         change: "strong".to_owned(),
         seed: SEED,
         budget_minutes: args.budget_minutes,
+        max_features: args.max_features,
+        vpr_top_k: args.vpr_top_k,
         rows: Vec::new(),
     };
     // A study run again keeps the rows it measured (a resumed run would time only what was left).
-    let measured_before = measured_rows(&work.join("scaling.json"))?;
+    let measured_before = measured_rows(&work.join("scaling.json"), &study)?;
     for &n in &args.scale {
         let dataset = survey(&work.join(n.to_string()), n)?;
         let mut sample = Sample::open(args, &dataset)?;
@@ -110,7 +117,11 @@ pub fn run(args: &Args) -> Result<()> {
                     secs_per_sampled_pair: per_pair,
                 }
             } else {
+                // Timed whole: what an interrupted run left is not reused.
                 let out = work.join(n.to_string()).join(name);
+                if out.exists() {
+                    std::fs::remove_dir_all(&out).with_context(|| format!("removing {}", out.display()))?;
+                }
                 let (_, figures) = run_strategy(args, strategy, &dataset, &out, &cancel)?;
                 measured_row(n, &figures, per_pair.map(|secs| (sample.pairs(strategy).len(), secs)))
             };
@@ -126,15 +137,19 @@ pub fn run(args: &Args) -> Result<()> {
     Ok(())
 }
 
-/// The measured rows of the study in `path`, if there is one.
-fn measured_rows(path: &Path) -> Result<Vec<Row>> {
+/// The measured rows of the study in `path`, if there is one made with the
+/// options of `this`.
+fn measured_rows(path: &Path, this: &Study) -> Result<Vec<Row>> {
     if !path.is_file() {
         return Ok(Vec::new());
     }
     let text = std::fs::read_to_string(path).with_context(|| path.display().to_string())?;
-    let study: Study =
+    let before: Study =
         serde_json::from_str(&text).with_context(|| format!("{}: not a scaling study", path.display()))?;
-    Ok(study.rows.into_iter().filter(|r| !r.estimated).collect())
+    if (before.max_features, before.vpr_top_k) != (this.max_features, this.vpr_top_k) {
+        return Ok(Vec::new());
+    }
+    Ok(before.rows.into_iter().filter(|r| !r.estimated).collect())
 }
 
 /// The survey of `n` images a visit in `dir/reef`, rendered unless a whole
