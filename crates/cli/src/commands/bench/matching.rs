@@ -497,12 +497,7 @@ fn extraction_figures(
 ) -> Result<Vec<ExtractionFigures>> {
     let mut images = Vec::new();
     for session in sessions {
-        let mut files: Vec<PathBuf> = std::fs::read_dir(sessions_dir.join(session))?
-            .filter_map(|e| e.ok().map(|e| e.path()))
-            .filter(|p| p.extension().is_some_and(|e| e == "png" || e == "jpg"))
-            .collect();
-        files.sort();
-        images.extend(files);
+        images.extend(session_images(&sessions_dir.join(session))?);
     }
     images.truncate(count.max(1));
     let decoded = images
@@ -625,4 +620,15 @@ fn print_figures(f: &Figures) {
             e.method, e.secs_per_image, e.images, e.target_secs
         );
     }
+}
+
+/// A synthetic session folder's images (PNG or JPEG), in name order.
+pub(super) fn session_images(dir: &Path) -> Result<Vec<PathBuf>> {
+    let mut files: Vec<PathBuf> = std::fs::read_dir(dir)
+        .with_context(|| dir.display().to_string())?
+        .filter_map(|e| e.ok().map(|e| e.path()))
+        .filter(|p| p.extension().is_some_and(|e| e == "png" || e == "jpg"))
+        .collect();
+    files.sort();
+    Ok(files)
 }

@@ -20,7 +20,7 @@ use revisit_pipeline::CrossStrategy;
 use revisit_synth::{ChangeGrade, SynthOptions};
 use serde::{Deserialize, Serialize};
 
-use super::matching::{run_strategy, Args, StrategyFigures};
+use super::matching::{run_strategy, session_images, Args, StrategyFigures};
 
 /// Visits of every survey of the study.
 const VISITS: usize = 3;
@@ -214,14 +214,7 @@ impl Sample {
     fn open(args: &Args, dataset: &Path) -> Result<Sample> {
         let mut images = Vec::new();
         for session in super::session_names(dataset)? {
-            let dir = dataset.join("sessions").join(&session);
-            let mut files: Vec<PathBuf> = std::fs::read_dir(&dir)
-                .with_context(|| dir.display().to_string())?
-                .filter_map(|e| e.ok().map(|e| e.path()))
-                .filter(|p| p.extension().is_some_and(|e| e == "png"))
-                .collect();
-            files.sort();
-            images.extend(files);
+            images.extend(session_images(&dataset.join("sessions").join(&session))?);
         }
         ensure!(images.len() % VISITS == 0, "{}: not {VISITS} visits of equal size", dataset.display());
         let (runtime, learned) = args.tools.open(revisit_pipeline::learned::LearnedMethod::default())?;
