@@ -18,9 +18,14 @@
 //!    `-r` within 45 degrees (else another roll was the nearer one, and the
 //!    matches do not show what the roll search chose).
 //! 2. **The offset agrees**: between two connected parts of two visits, the
-//!    offsets implied by their pairs are voted (weighted by inliers); when one
-//!    offset holds more than half of the weight and at least two pairs, a pair
-//!    more than `tolerance_deg` away from it is off the consensus.
+//!    offsets implied by their pairs are voted (weighted by inliers; a pair
+//!    matched at a predicted roll agrees by construction and does not vote);
+//!    when one offset holds more than half of the weight and at least two
+//!    pairs, a pair more than `tolerance_deg` away from it is off the
+//!    consensus. Around a cycle of visits the offsets must add up: the clear
+//!    ones (twice the weight for as against) are chained through the
+//!    surest, and a pair of visits whose own offset disagrees with the chain,
+//!    or that has none, is held to the chain's.
 //! 3. **The navigation agrees** (when both images have a navigated position):
 //!    a downward camera's centre sits above the ground its image centre shows,
 //!    so the pair's matches say where each image sees the other's centre
@@ -232,6 +237,9 @@ pub struct CheckedPair {
     pub inliers: usize,
     /// For a learned cross-visit pair: the roll at which the later visit's image was matched.
     pub roll: Option<Roll>,
+    /// Matched at the roll its visits' consensus predicted, and kept because it turns as
+    /// predicted: it agrees with that consensus by construction, so it does not vote on it.
+    pub predicted: bool,
 }
 
 /// What the check says of a cross-visit pair.
@@ -265,7 +273,7 @@ struct Offset {
     /// Into the pairs checked.
     index: usize,
     deg: f64,
-    /// The pair's inliers.
+    /// The pair's inliers; 0 for a pair that does not vote ([`CheckedPair::predicted`]).
     weight: f64,
 }
 
@@ -303,20 +311,80 @@ fn votes(pairs: &[CheckedPair], visit_of: &BTreeMap<ImageId, usize>) -> Votes {
             continue;
         };
         let offset = wrap(turn_deg - (heading_l - heading_e));
-        groups.entry((root_e, root_l)).or_default().push(Offset { index, deg: offset, weight: pair.inliers as f64 });
+        let weight = if pair.predicted { 0.0 } else { pair.inliers as f64 };
+        groups.entry((root_e, root_l)).or_default().push(Offset { index, deg: offset, weight });
         verdicts.push((index, Verdict::Consistent));
     }
     Votes { headings, verdicts, groups }
 }
 
-/// The offset most of `members`' weight agrees on (within `tolerance_deg`),
-/// if it holds more than half of the weight and at least two pairs.
-fn consensus(members: &[Offset], tolerance_deg: f64) -> Option<f64> {
-    let offsets: Vec<f64> = members.iter().map(|m| m.deg).collect();
-    let weights: Vec<f64> = members.iter().map(|m| m.weight).collect();
-    let (consensus, support) = mode(&offsets, &weights, tolerance_deg);
-    let supporters = offsets.iter().filter(|o| angle_between(**o, consensus) <= tolerance_deg).count();
-    (supporters >= 2 && support > 0.5 * weights.iter().sum::<f64>()).then_some(consensus)
+/// The offset most of the voting `members`' weight agrees on (within
+/// `tolerance_deg`), if it holds more than half of the weight and at least
+/// two voters.
+fn consensus(members: &[Offset], tolerance_deg: f64) -> Option<Consensus> {
+    let voters: Vec<&Offset> = members.iter().filter(|m| m.weight > 0.0).collect();
+    let offsets: Vec<f64> = voters.iter().map(|m| m.deg).collect();
+    let weights: Vec<f64> = voters.iter().map(|m| m.weight).collect();
+    let (deg, support) = mode(&offsets, &weights, tolerance_deg);
+    let supporters = offsets.iter().filter(|o| angle_between(**o, deg) <= tolerance_deg).count();
+    let against = weights.iter().sum::<f64>() - support;
+    (supporters >= 2 && support > against).then_some(Consensus { deg, support, against })
+}
+
+/// An offset most of the votes between two parts agree on, with the weight for and against it.
+#[derive(Clone, Copy, Debug)]
+struct Consensus {
+    deg: f64,
+    support: f64,
+    against: f64,
+}
+
+impl Consensus {
+    /// Clear enough to predict pairs from: at least twice the weight for as against. A narrower
+    /// one (two wrong pairs that happen to agree, one right and one wrong) waits for more votes.
+    fn is_clear(&self) -> bool {
+        self.support >= 2.0 * self.against
+    }
+}
+
+/// The heading offsets between connected parts of visits that their clear
+/// consensuses ([`Consensus::is_clear`]) imply together. Each measures one
+/// offset between two parts; around a cycle of parts (three visits, or two
+/// parts of a visit and a part of another) the offsets must add up, and where
+/// they do not, the surer ones win: the offsets are chained through a maximum
+/// spanning forest of the consensuses by their margins (weight for less
+/// weight against), as the headings within a visit are through its strongest
+/// pairs. So two parts linked through a third have an offset before their
+/// own pairs agree on one (visits 1 and 2 through visit 3), and a consensus
+/// that disagrees with two clearer ones around a cycle gives way to them.
+#[derive(Clone, Debug, Default)]
+struct PartFrames {
+    /// Each part (by its root image) in the frame of its group of linked parts: `(group root, heading)`.
+    frames: BTreeMap<ImageId, (ImageId, f64)>,
+}
+
+impl PartFrames {
+    fn new(groups: &BTreeMap<(ImageId, ImageId), Vec<Offset>>, tolerance_deg: f64) -> PartFrames {
+        let links: Vec<Link> = groups
+            .iter()
+            .filter_map(|(&(earlier, later), members)| {
+                let consensus = consensus(members, tolerance_deg).filter(Consensus::is_clear)?;
+                Some(Link {
+                    from: earlier,
+                    to: later,
+                    deg: consensus.deg,
+                    weight: consensus.support - consensus.against,
+                })
+            })
+            .collect();
+        PartFrames { frames: chain_spanning_forest([], links) }
+    }
+
+    /// The heading offset from part `earlier` to part `later` (as [`Offset::deg`]), if they are linked.
+    fn offset(&self, earlier: ImageId, later: ImageId) -> Option<f64> {
+        let ((group_e, heading_e), (group_l, heading_l)) = (self.frames.get(&earlier)?, self.frames.get(&later)?);
+        (group_e == group_l).then(|| wrap(heading_l - heading_e))
+    }
 }
 
 /// The verdict on every cross-visit pair of `pairs` (in their order; pairs
@@ -335,8 +403,11 @@ pub fn check_cross_pairs(
     loop_tolerance: f64,
 ) -> Vec<(usize, Verdict)> {
     let Votes { mut verdicts, groups, .. } = votes(pairs, visit_of);
-    for members in groups.values() {
-        let Some(consensus) = consensus(members, tolerance_deg) else { continue };
+    let frames = PartFrames::new(&groups, tolerance_deg);
+    for (&(earlier, later), members) in &groups {
+        // The clear consensuses' offset, or the pairs' own narrow one.
+        let own = || consensus(members, tolerance_deg).map(|c| c.deg);
+        let Some(consensus) = frames.offset(earlier, later).or_else(own) else { continue };
         for member in members.iter().filter(|m| angle_between(m.deg, consensus) > tolerance_deg) {
             if let Some(v) = verdicts.iter_mut().find(|(i, _)| *i == member.index) {
                 v.1 = Verdict::OffConsensus { offset_deg: member.deg, consensus_deg: consensus };
@@ -659,6 +730,9 @@ pub const PLACEMENT_TOLERANCE: f64 = 0.05;
 #[derive(Clone, Copy, Debug, Default, PartialEq, serde::Serialize, serde::Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct Placement {
+    /// Verified cross-visit pairs between the two visits that were mapped, both images in the model.
+    #[serde(default)]
+    pub joining: usize,
     /// Confirmed pairs with both images in the model and enough of their matches triangulated.
     pub measured: usize,
     /// Of those, the pairs whose matches the model puts within their tolerance of each other.
@@ -671,6 +745,7 @@ impl Placement {
     /// From each measured pair's [`placement_error_px`] and its tolerance (pixels).
     pub fn of(errors: &[(f64, f64)]) -> Placement {
         Placement {
+            joining: 0,
             measured: errors.len(),
             agreeing: errors.iter().filter(|(e, tolerance)| e <= tolerance).count(),
             median_px: if errors.is_empty() { 0.0 } else { median(errors.iter().map(|e| e.0).collect()) },
@@ -680,6 +755,12 @@ impl Placement {
     /// Most of the pairs that confirm the two visits' link disagree with where the model put them.
     pub fn is_suspect(&self) -> bool {
         self.measured >= 2 && 2 * self.agreeing < self.measured
+    }
+
+    /// The model joins the two visits by verified pairs, none of which the loops confirm: nothing
+    /// checks where it put them (a join made by wrong pairs alone looks the same).
+    pub fn is_unchecked(&self) -> bool {
+        self.joining > 0 && self.measured == 0
     }
 }
 
@@ -694,14 +775,13 @@ fn length(v: [f64; 2]) -> f64 {
 #[derive(Clone, Debug, Default)]
 pub struct Predictor {
     headings: BTreeMap<ImageId, (ImageId, f64)>,
-    offsets: BTreeMap<(ImageId, ImageId), f64>,
+    frames: PartFrames,
 }
 
 impl Predictor {
     pub fn new(pairs: &[CheckedPair], visit_of: &BTreeMap<ImageId, usize>, tolerance_deg: f64) -> Predictor {
         let Votes { headings, groups, .. } = votes(pairs, visit_of);
-        let offsets = groups.iter().filter_map(|(parts, m)| Some((*parts, consensus(m, tolerance_deg)?))).collect();
-        Predictor { headings, offsets }
+        Predictor { headings, frames: PartFrames::new(&groups, tolerance_deg) }
     }
 
     /// The two connected parts a pair from `earlier` (an image of the earlier
@@ -714,7 +794,7 @@ impl Predictor {
     /// the consensus of their parts implies; `None` without a consensus.
     pub fn turn(&self, earlier: ImageId, later: ImageId) -> Option<f64> {
         let (&(root_e, heading_e), &(root_l, heading_l)) = (self.headings.get(&earlier)?, self.headings.get(&later)?);
-        let offset = self.offsets.get(&(root_e, root_l))?;
+        let offset = self.frames.offset(root_e, root_l)?;
         Some(wrap(offset + heading_l - heading_e))
     }
 }
@@ -724,14 +804,37 @@ impl Predictor {
 /// strongest pairs within the visit (a maximum spanning forest by inliers),
 /// chained from the root.
 fn headings(pairs: &[CheckedPair], visit_of: &BTreeMap<ImageId, usize>) -> BTreeMap<ImageId, (ImageId, f64)> {
-    let mut intra: Vec<&CheckedPair> = pairs
+    let links = pairs
         .iter()
         .filter(|p| p.kind == PairKind::Intra)
         .filter(|p| visit_of.get(&p.image_id1).is_some_and(|v| visit_of.get(&p.image_id2) == Some(v)))
+        .map(|p| Link { from: p.image_id1, to: p.image_id2, deg: p.turn.deg, weight: p.inliers as f64 })
         .collect();
-    intra.sort_by(|a, b| b.inliers.cmp(&a.inliers).then((a.image_id1, a.image_id2).cmp(&(b.image_id1, b.image_id2))));
-    // Kruskal: the strongest pairs that join two parts.
-    let mut parent: BTreeMap<ImageId, ImageId> = visit_of.keys().map(|id| (*id, *id)).collect();
+    chain_spanning_forest(visit_of.keys().copied(), links)
+}
+
+/// A measured turn from one node to another (degrees), and how sure it is.
+struct Link {
+    from: ImageId,
+    to: ImageId,
+    deg: f64,
+    weight: f64,
+}
+
+/// Each of `nodes` (and of the links' ends) with its heading relative to the
+/// root of its tree (the tree's smallest node): the heaviest links that join
+/// two trees (Kruskal, ties by the nodes), their turns chained from the root.
+fn chain_spanning_forest(
+    nodes: impl IntoIterator<Item = ImageId>,
+    mut links: Vec<Link>,
+) -> BTreeMap<ImageId, (ImageId, f64)> {
+    links.sort_by(|a, b| b.weight.total_cmp(&a.weight).then((a.from, a.to).cmp(&(b.from, b.to))));
+    let mut parent: BTreeMap<ImageId, ImageId> = nodes.into_iter().map(|id| (id, id)).collect();
+    for link in &links {
+        for id in [link.from, link.to] {
+            parent.entry(id).or_insert(id);
+        }
+    }
     fn find(parent: &mut BTreeMap<ImageId, ImageId>, id: ImageId) -> ImageId {
         let mut root = id;
         while let Some(&p) = parent.get(&root).filter(|p| **p != root) {
@@ -741,16 +844,16 @@ fn headings(pairs: &[CheckedPair], visit_of: &BTreeMap<ImageId, usize>) -> BTree
         root
     }
     let mut edges: BTreeMap<ImageId, Vec<(ImageId, f64)>> = BTreeMap::new();
-    for pair in intra {
-        let (a, b) = (find(&mut parent, pair.image_id1), find(&mut parent, pair.image_id2));
+    for link in &links {
+        let (a, b) = (find(&mut parent, link.from), find(&mut parent, link.to));
         if a != b {
             parent.insert(a.max(b), a.min(b));
-            edges.entry(pair.image_id1).or_default().push((pair.image_id2, pair.turn.deg));
-            edges.entry(pair.image_id2).or_default().push((pair.image_id1, -pair.turn.deg));
+            edges.entry(link.from).or_default().push((link.to, link.deg));
+            edges.entry(link.to).or_default().push((link.from, -link.deg));
         }
     }
     let mut headings = BTreeMap::new();
-    for &root in visit_of.keys() {
+    for &root in parent.keys() {
         if headings.contains_key(&root) {
             continue;
         }
@@ -841,7 +944,8 @@ mod tests {
     }
 
     fn pair(image_id1: ImageId, image_id2: ImageId, kind: PairKind, deg: f64, roll: Option<Roll>) -> CheckedPair {
-        CheckedPair { image_id1, image_id2, kind, turn: Turn { deg, agreement: 1.0 }, motion: None, inliers: 50, roll }
+        let turn = Turn { deg, agreement: 1.0 };
+        CheckedPair { image_id1, image_id2, kind, turn, motion: None, inliers: 50, roll, predicted: false }
     }
 
     const LOOPS: f64 = DEFAULT_LOOP_TOLERANCE;
@@ -877,6 +981,47 @@ mod tests {
         let alone =
             check_cross_pairs(&pairs, &visit_of, DEFAULT_CONSISTENCY_TOLERANCE_DEG, &Navigation::default(), LOOPS);
         assert_eq!(alone.iter().filter(|v| v.1.is_consistent()).count(), 5);
+    }
+
+    #[test]
+    fn the_offsets_between_visits_add_up_around_a_cycle() {
+        // Three visits of two images each, headed 0, 90 and 180 degrees.
+        let visit_of: BTreeMap<ImageId, usize> = [(1, 0), (2, 0), (11, 1), (12, 1), (21, 2), (22, 2)].into();
+        let cross = |a, b, deg, roll, inliers| CheckedPair { inliers, ..pair(a, b, PairKind::Cross, deg, Some(roll)) };
+        let chains = [(1, 2), (11, 12), (21, 22)].map(|(a, b)| pair(a, b, PairKind::Intra, 0.0, None));
+        let clear = [
+            cross(1, 21, 180.0, Roll::R180, 80),
+            cross(2, 22, 181.0, Roll::R180, 90),
+            cross(11, 21, 90.0, Roll::R270, 80),
+            cross(12, 22, 89.0, Roll::R270, 70),
+        ];
+        // Visits 0 and 1 by two wrong pairs that agree, narrowly, and two that do not.
+        let narrow = [
+            cross(1, 11, 270.0, Roll::R90, 33),
+            cross(2, 12, 268.0, Roll::R90, 32),
+            cross(1, 12, 0.0, Roll::R0, 34),
+            cross(2, 11, 180.0, Roll::R180, 30),
+        ];
+        let predicted = |pairs: &[CheckedPair]| -> Option<f64> {
+            let pairs: Vec<CheckedPair> = chains.iter().chain(pairs).copied().collect();
+            Predictor::new(&pairs, &visit_of, DEFAULT_CONSISTENCY_TOLERANCE_DEG).turn(1, 12)
+        };
+        // Visits 0 and 1 without a pair of their own: predicted through visit 2.
+        assert!(predicted(&clear).is_some_and(|deg| angle_between(deg, 90.0) < 2.0), "{:?}", predicted(&clear));
+        // A narrow consensus predicts nothing, and the pairs matched at a roll predicted from it do not
+        // make it clearer: they agree with it by construction.
+        assert_eq!(predicted(&narrow), None);
+        let echoes = [(1, 11), (2, 11), (1, 12), (2, 12)]
+            .map(|(a, b)| CheckedPair { predicted: true, ..cross(a, b, 271.0, Roll::R90, 60) });
+        assert_eq!(predicted(&[narrow.as_slice(), &echoes].concat()), None);
+        // With the clear ones, the path through visit 2 wins over the narrow consensus.
+        let all: Vec<CheckedPair> = chains.iter().chain(&clear).chain(&narrow).copied().collect();
+        assert!(predicted(&all[3..]).is_some_and(|deg| angle_between(deg, 90.0) < 2.0));
+        let verdicts =
+            check_cross_pairs(&all, &visit_of, DEFAULT_CONSISTENCY_TOLERANCE_DEG, &Navigation::default(), 0.0);
+        let off: Vec<usize> =
+            verdicts.iter().filter(|v| matches!(v.1, Verdict::OffConsensus { .. })).map(|v| v.0).collect();
+        assert_eq!(off, vec![7, 8, 9, 10], "{verdicts:?}");
     }
 
     #[test]
@@ -1058,5 +1203,9 @@ mod tests {
         assert!(placement.is_suspect());
         assert!(!Placement::of(&[(right, tolerance), (turned, tolerance)]).is_suspect());
         assert!(!Placement::of(&[(turned, tolerance)]).is_suspect(), "one pair is not enough to say");
+        // Joined without a confirmed pair: unchecked; not joined at all: nothing to check.
+        assert!(Placement { joining: 4, ..Placement::of(&[]) }.is_unchecked());
+        assert!(!Placement { joining: 4, ..placement }.is_unchecked());
+        assert!(!Placement::of(&[]).is_unchecked());
     }
 }

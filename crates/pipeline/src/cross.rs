@@ -592,6 +592,7 @@ impl PairTurns {
                     true => u32::try_from(record.roll_deg).ok().and_then(Roll::from_degrees),
                     false => None,
                 },
+                predicted: record.predicted_roll_deg.is_some(),
             });
             self.pairs.insert(id, checked);
         }
@@ -725,12 +726,13 @@ pub struct Consistency {
     pub confirmed: Vec<(ImageId, ImageId)>,
 }
 
-/// Per pair of visits in `model` (`"s1-s2"`, in visit order), how the model
+/// Per pair of visits that `model` joins (`"s1-s2"`, in visit order), how it
 /// holds the `confirmed` cross-visit pairs between them
-/// ([`consistency::placement_error_px`]). The loops confirm a pair without the
-/// model, so a model whose placement of two visits disagrees with most of
-/// them placed the visits wrong: a wrong pair bent it, or it joined the
-/// visits where no pair says they meet.
+/// ([`consistency::placement_error_px`]), and how many mapped pairs join them.
+/// The loops confirm a pair without the model, so a model whose placement of
+/// two visits disagrees with most of them placed the visits wrong: a wrong
+/// pair bent it, or it joined the visits where no pair says they meet. A join
+/// without a confirmed pair is unchecked.
 pub fn check_placement(
     store: &Store,
     sessions: &[Session],
@@ -739,19 +741,39 @@ pub fn check_placement(
 ) -> Result<BTreeMap<String, Placement>, PipelineError> {
     let session_of: BTreeMap<ImageId, &Session> =
         sessions.iter().flat_map(|s| s.images.iter().map(move |i| (i.id, s))).collect();
-    let mut errors: BTreeMap<String, Vec<(f64, f64)>> = BTreeMap::new();
+    // The two visits of a cross-visit pair with both images in the model.
+    let visits = |a: ImageId, b: ImageId| -> Option<String> {
+        let (sa, sb) = (session_of.get(&a)?, session_of.get(&b)?);
+        let (first, second) = if sa.visit <= sb.visit { (sa, sb) } else { (sb, sa) };
+        (sa.visit != sb.visit && model.images.contains_key(&a) && model.images.contains_key(&b))
+            .then(|| format!("{}-{}", first.name, second.name))
+    };
+    let aside = store.set_aside_pairs()?;
+    let mut joining: BTreeMap<String, usize> = BTreeMap::new();
+    for record in store.pair_records()? {
+        let (a, b) = (record.image_id1, record.image_id2);
+        if record.kind == PairKind::Cross && record.num_inliers > 0 && !aside.contains_key(&pair_id(a, b)) {
+            if let Some(visits) = visits(a, b) {
+                *joining.entry(visits).or_default() += 1;
+            }
+        }
+    }
+    let mut errors: BTreeMap<String, Vec<(f64, f64)>> = joining.keys().map(|v| (v.clone(), Vec::new())).collect();
     for &(a, b) in confirmed {
-        let (Some(sa), Some(sb), Some(image_b)) = (session_of.get(&a), session_of.get(&b), model.images.get(&b)) else {
-            continue;
-        };
+        let (Some(visits), Some(image_b)) = (visits(a, b), model.images.get(&b)) else { continue };
         let matches = store.verified_matches(pair_id(a, b))?;
         let Some(error_px) = consistency::placement_error_px(model, a, b, &matches) else { continue };
         let Some(camera) = model.cameras.get(&image_b.camera_id) else { continue };
         let tolerance_px = consistency::PLACEMENT_TOLERANCE * f64::from(camera.width).hypot(f64::from(camera.height));
-        let (first, second) = if sa.visit <= sb.visit { (sa, sb) } else { (sb, sa) };
-        errors.entry(format!("{}-{}", first.name, second.name)).or_default().push((error_px, tolerance_px));
+        errors.entry(visits).or_default().push((error_px, tolerance_px));
     }
-    Ok(errors.into_iter().map(|(visits, errors)| (visits, Placement::of(&errors))).collect())
+    Ok(errors
+        .into_iter()
+        .map(|(visits, errors)| {
+            let joining = joining.get(&visits).copied().unwrap_or_default();
+            (visits, Placement { joining, ..Placement::of(&errors) })
+        })
+        .collect())
 }
 
 /// The images' navigated positions across the ground, from the store's pose

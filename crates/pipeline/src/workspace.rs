@@ -367,7 +367,7 @@ impl Workspace {
             }
         }
         let chosen_model = chosen.and_then(|k| outcome.models.get(k));
-        let placement = match chosen_model.filter(|_| !confirmed.is_empty()) {
+        let placement = match chosen_model.filter(|_| self.sessions.len() >= 2) {
             Some(model) => {
                 let model = revisit_colmap::read_model(&model.path)?;
                 cross::check_placement(&self.store, &self.sessions, &model, &confirmed)?

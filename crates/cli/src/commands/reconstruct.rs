@@ -228,6 +228,13 @@ fn print_summary(report: &Report, work: &Path) {
             p.median_px
         );
     }
+    for (visits, p) in report.mapping.placement.iter().filter(|(_, p)| p.is_unchecked()) {
+        println!(
+            "warning: visits {visits} are joined by {} cross-visit pairs, none of which their loops confirm: \
+             nothing checks their placement (wrong pairs alone would join them the same way)",
+            p.joining
+        );
+    }
     for name in &report.unlinked_sessions {
         println!(
             "warning: session {name} could not be linked to the others: fewer than half its images are in \
