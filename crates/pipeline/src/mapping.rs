@@ -46,6 +46,14 @@ pub fn model_root(work: &Path) -> PathBuf {
     work.join("model")
 }
 
+/// The folder of the `k`-th of `count` models (largest first) of the work folder `work`.
+fn model_path(work: &Path, k: usize, count: usize) -> PathBuf {
+    match count {
+        1 => model_root(work),
+        _ => model_root(work).join((k + 1).to_string()),
+    }
+}
+
 fn record_path(work: &Path) -> PathBuf {
     work.join("mapping.json")
 }
@@ -57,7 +65,12 @@ pub(crate) fn io(path: &Path) -> impl FnOnce(std::io::Error) -> PipelineError + 
 
 fn previous(work: &Path) -> Option<MappingOutcome> {
     let text = std::fs::read_to_string(record_path(work)).ok()?;
-    let outcome: MappingOutcome = serde_json::from_str(&text).ok()?;
+    let mut outcome: MappingOutcome = serde_json::from_str(&text).ok()?;
+    // Where the models are now: the work folder may have been moved or copied since.
+    let count = outcome.models.len();
+    for (k, model) in outcome.models.iter_mut().enumerate() {
+        model.path = model_path(work, k, count);
+    }
     outcome.models.iter().all(|m| m.path.join("images.bin").is_file()).then_some(outcome)
 }
 
@@ -189,7 +202,7 @@ pub fn map(
     let count = produced.models.len();
     let mut models = Vec::with_capacity(count);
     for (k, model) in produced.models.into_iter().enumerate() {
-        let target = if count == 1 { root.clone() } else { root.join((k + 1).to_string()) };
+        let target = model_path(work, k, count);
         if let Some(parent) = target.parent() {
             std::fs::create_dir_all(parent).map_err(io(parent))?;
         }
@@ -230,4 +243,42 @@ fn copy_dir(from: &Path, to: &Path) -> Result<(), PipelineError> {
         }
     }
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_moved_work_folder_keeps_its_models_where_they_are_now() {
+        let dir = tempfile::tempdir().unwrap();
+        let (original, moved) = (dir.path().join("original"), dir.path().join("moved"));
+        let summary = |path: PathBuf| ModelSummary {
+            path,
+            registered_images: vec!["s1/a.png".into()],
+            points: 1,
+            mean_reprojection_error_px: 0.5,
+            navigation_rms_m: None,
+            navigation_offsets: Default::default(),
+        };
+        let outcome = MappingOutcome {
+            models: vec![summary(model_path(&original, 0, 2)), summary(model_path(&original, 1, 2))],
+            reused: false,
+            extended: false,
+            inputs: "inputs".into(),
+            set_aside: Vec::new(),
+            priors: String::new(),
+            on_navigation: false,
+            peak_rss_mib: None,
+            change_aware: None,
+        };
+        for model in &outcome.models {
+            std::fs::create_dir_all(&model.path).unwrap();
+            std::fs::write(model.path.join("images.bin"), b"").unwrap();
+        }
+        std::fs::write(record_path(&original), serde_json::to_string(&outcome).unwrap()).unwrap();
+        std::fs::rename(&original, &moved).unwrap();
+        let paths: Vec<PathBuf> = previous(&moved).unwrap().models.into_iter().map(|m| m.path).collect();
+        assert_eq!(paths, [moved.join("model/1"), moved.join("model/2")]);
+    }
 }
