@@ -769,9 +769,9 @@ fn length(v: [f64; 2]) -> f64 {
 }
 
 /// The turns that the verified pairs predict for pairs not matched yet: each
-/// image's heading within its visit, and the heading offset that the
-/// cross-visit pairs between two parts of two visits agree on (the
-/// consensus [`check_cross_pairs`] holds pairs to).
+/// image's heading within its visit, and the heading offset between two parts
+/// of two visits that the clear consensuses imply, directly or through other
+/// visits (the offset [`check_cross_pairs`] holds pairs to).
 #[derive(Clone, Debug, Default)]
 pub struct Predictor {
     headings: BTreeMap<ImageId, (ImageId, f64)>,
@@ -791,7 +791,7 @@ impl Predictor {
     }
 
     /// The turn (degrees, as [`Turn::deg`]) from `earlier` to `later` that
-    /// the consensus of their parts implies; `None` without a consensus.
+    /// the clear consensuses imply; `None` when no chain of them links their parts.
     pub fn turn(&self, earlier: ImageId, later: ImageId) -> Option<f64> {
         let (&(root_e, heading_e), &(root_l, heading_l)) = (self.headings.get(&earlier)?, self.headings.get(&later)?);
         let offset = self.frames.offset(root_e, root_l)?;
