@@ -728,7 +728,8 @@ pub struct Consistency {
 
 /// Per pair of visits that `model` joins (`"s1-s2"`, in visit order), how it
 /// holds the `confirmed` cross-visit pairs between them
-/// ([`consistency::placement_error_px`]), and how many mapped pairs join them.
+/// ([`consistency::placement_error_px`]), and how many mapped pairs of
+/// `records` (the store's) join them.
 /// The loops confirm a pair without the model, so a model whose placement of
 /// two visits disagrees with most of them placed the visits wrong: a wrong
 /// pair bent it, or it joined the visits where no pair says they meet. A join
@@ -737,6 +738,7 @@ pub fn check_placement(
     store: &Store,
     sessions: &[Session],
     model: &Reconstruction,
+    records: &[PairRecord],
     confirmed: &[(ImageId, ImageId)],
 ) -> Result<BTreeMap<String, Placement>, PipelineError> {
     let session_of: BTreeMap<ImageId, &Session> =
@@ -750,7 +752,7 @@ pub fn check_placement(
     };
     let aside = store.set_aside_pairs()?;
     let mut joining: BTreeMap<String, usize> = BTreeMap::new();
-    for record in store.pair_records()? {
+    for record in records {
         let (a, b) = (record.image_id1, record.image_id2);
         if record.kind == PairKind::Cross && record.num_inliers > 0 && !aside.contains_key(&pair_id(a, b)) {
             if let Some(visits) = visits(a, b) {

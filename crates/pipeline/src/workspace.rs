@@ -370,7 +370,7 @@ impl Workspace {
         let placement = match chosen_model.filter(|_| self.sessions.len() >= 2) {
             Some(model) => {
                 let model = revisit_colmap::read_model(&model.path)?;
-                cross::check_placement(&self.store, &self.sessions, &model, &confirmed)?
+                cross::check_placement(&self.store, &self.sessions, &model, &records, &confirmed)?
             }
             None => BTreeMap::new(),
         };
