@@ -5,7 +5,7 @@ use std::path::Path;
 
 use image::RgbImage;
 use revisit_core::{LearnedFeatures, Roll};
-use revisit_features::learned::{Aliked, LearnedExtractor, XFeat, XFeatOptions};
+use revisit_features::learned::{Aliked, LearnedExtractor, LearnedInput, XFeat, XFeatOptions};
 use revisit_matching::{match_with_rolls, CrossMatch, LightGlue, RollSearch, VerifyOptions};
 use revisit_onnx::{OnnxError, Runtime};
 use serde::{Deserialize, Serialize};
@@ -54,15 +54,19 @@ impl LearnedMethod {
     }
 }
 
-/// The extractor of `method`, from the `models` folder.
-pub fn open_extractor(runtime: &Runtime, models: &Path, method: LearnedMethod) -> Result<LearnedExtractor, OnnxError> {
+/// The extractor of `method`, from the `models` folder, given `input` of each image.
+pub fn open_extractor(
+    runtime: &Runtime,
+    models: &Path,
+    method: LearnedMethod,
+    input: LearnedInput,
+) -> Result<LearnedExtractor, OnnxError> {
     let [extractor_file, _] = method.model_files();
+    let path = models.join(extractor_file);
     Ok(match method {
-        LearnedMethod::AlikedLightglue => {
-            LearnedExtractor::Aliked(Aliked::open(runtime, &models.join(extractor_file))?)
-        }
+        LearnedMethod::AlikedLightglue => LearnedExtractor::aliked(Aliked::open(runtime, &path)?, input),
         LearnedMethod::XfeatLighterglue => {
-            LearnedExtractor::XFeat(XFeat::open(runtime, &models.join(extractor_file), XFeatOptions::default())?)
+            LearnedExtractor::xfeat(XFeat::open(runtime, &path, XFeatOptions::default())?, input)
         }
     })
 }
@@ -86,8 +90,15 @@ pub struct Learned {
 }
 
 impl Learned {
-    pub fn open(runtime: &Runtime, models: &Path, method: LearnedMethod) -> Result<Learned, OnnxError> {
-        let extractor = open_extractor(runtime, models, method)?;
+    /// `input`: what the extractor is given of each image (a store's features
+    /// come from one kind: `FeatureOptions::learned_input`, pinned).
+    pub fn open(
+        runtime: &Runtime,
+        models: &Path,
+        method: LearnedMethod,
+        input: LearnedInput,
+    ) -> Result<Learned, OnnxError> {
+        let extractor = open_extractor(runtime, models, method, input)?;
         let matcher = open_matcher(runtime, models, method, extractor.descriptor_dim())?;
         Ok(Learned { method, extractor, matcher })
     }

@@ -7,6 +7,7 @@ use std::path::PathBuf;
 
 use revisit_colmap::{Engine, MapperOptions, PlyColors};
 use revisit_core::{Camera, CameraModel};
+use revisit_features::learned::LearnedInput;
 use revisit_features::SiftOptions;
 use revisit_matching::{CrossOptions, MatchOptions, PairOptions, VerifyOptions};
 use revisit_places::CandidateOptions;
@@ -101,6 +102,10 @@ pub struct FeatureOptions {
     /// Images whose larger side exceeds this are downscaled for SIFT
     /// (keypoints are reported in full-resolution pixels). Default 3200.
     pub max_image_size_px: u32,
+    /// What the learned extractor is given of each image: by default each
+    /// channel stretched between its percentiles (`revisit_features::learned::stretch`),
+    /// so that visits under other light, water and colour look alike.
+    pub learned_input: LearnedInput,
 }
 
 impl Default for FeatureOptions {
@@ -108,6 +113,7 @@ impl Default for FeatureOptions {
         FeatureOptions {
             sift: SiftOptions { max_num_features: 4096, ..SiftOptions::default() },
             max_image_size_px: 3200,
+            learned_input: LearnedInput::default(),
         }
     }
 }

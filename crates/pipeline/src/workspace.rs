@@ -410,7 +410,8 @@ impl Workspace {
     /// ONNX Runtime and the learned method's models.
     fn open_learned(&self) -> Result<(revisit_onnx::Runtime, Learned), PipelineError> {
         let runtime = self.tools.onnxruntime(0)?;
-        let learned = Learned::open(&runtime, &self.tools.models(), self.options.learned)?;
+        let learned =
+            Learned::open(&runtime, &self.tools.models(), self.options.learned, self.options.features.learned_input)?;
         Ok((runtime, learned))
     }
 
@@ -444,7 +445,8 @@ impl Workspace {
     ) -> Result<StageCounts, PipelineError> {
         let search = self.options.learned_matching.roll_search;
         let (Learned { method, extractor, .. }, mut pool) = (learned, Vec::new());
-        let open = |runtime: &_, models: &_| learned::open_extractor(runtime, models, *method);
+        let input = self.options.features.learned_input;
+        let open = |runtime: &_, models: &_| learned::open_extractor(runtime, models, *method, input);
         // ALIKED at 640x480: 1.3 GiB a run, measured.
         let extractors = self.workers(extractor, &mut pool, 1400.0, open)?;
         let method = *method;

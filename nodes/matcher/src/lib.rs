@@ -92,7 +92,8 @@ pub async fn run(node: &mut Node) -> Result<Summary, NodeError> {
     let threads: usize = node.param("onnx_threads", 0)?;
     let work = |e: String| NodeError::Work(e);
     let runtime = tools.onnxruntime(threads).map_err(|e| work(e.to_string()))?;
-    let learned = Learned::open(&runtime, &tools.models(), options.learned).map_err(|e| work(e.to_string()))?;
+    let learned = Learned::open(&runtime, &tools.models(), options.learned, options.features.learned_input)
+        .map_err(|e| work(e.to_string()))?;
     let cache = FeatureCache::open(&state_dir.join("matcher.db"), "features").map_err(|e| work(e.to_string()))?;
     let (journal, lines) = Journal::open(&state_dir.join("journal"))?;
     let names: BTreeMap<_, _> =

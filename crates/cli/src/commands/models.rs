@@ -5,6 +5,7 @@ use std::path::PathBuf;
 
 use anyhow::{Context, Result};
 use clap::builder::{PossibleValue, PossibleValuesParser, TypedValueParser};
+use revisit_features::learned::LearnedInput;
 use revisit_pipeline::learned::{Learned, LearnedMethod};
 use revisit_pipeline::locate::Tools;
 use revisit_pipeline::CrossStrategy;
@@ -49,7 +50,7 @@ impl ToolArgs {
     pub fn open(&self, method: LearnedMethod) -> Result<(revisit_onnx::Runtime, Learned)> {
         let tools = self.tools();
         let runtime = tools.onnxruntime(0).context("--onnxruntime")?;
-        let learned = Learned::open(&runtime, &tools.models(), method).context("--models")?;
+        let learned = Learned::open(&runtime, &tools.models(), method, LearnedInput::default()).context("--models")?;
         Ok((runtime, learned))
     }
 }

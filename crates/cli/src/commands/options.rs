@@ -5,12 +5,25 @@
 use std::path::PathBuf;
 
 use revisit_colmap::{Engine, PlyColors};
+use revisit_features::learned::LearnedInput;
 use revisit_matching::RollSearch;
 use revisit_pipeline::learned::LearnedMethod;
 use revisit_pipeline::options::{CameraSpec, PlaceSource, ReconstructOptions};
 use revisit_pipeline::CrossStrategy;
 
 use crate::commands::models::{cross_strategies, learned_methods};
+
+#[derive(Clone, Copy, clap::ValueEnum)]
+enum LearnedInputArg {
+    /// Each channel stretched linearly between its 1st and 99th percentiles:
+    /// a visit's colour cast, haze and light level taken out.
+    Stretched,
+    /// Stretched, then CLAHE on the luminance (more matches, right and
+    /// wrong; README).
+    Equalized,
+    /// The image as it is.
+    Raw,
+}
 
 #[derive(Clone, Copy, clap::ValueEnum)]
 enum RollSearchArg {
@@ -176,6 +189,9 @@ pub struct OptionArgs {
     /// (keypoints are reported in full-resolution pixels).
     #[arg(long, default_value_t = 3200, value_name = "PX")]
     max_image_size: u32,
+    /// What the learned extractor sees of each image.
+    #[arg(long, value_enum, default_value = "stretched")]
+    learned_input: LearnedInputArg,
     /// A calibrated camera, [SESSION[/CAMERA]=]MODEL:PARAMS in COLMAP's
     /// parameter order (e.g. PINHOLE:fx,fy,cx,cy or
     /// OPENCV:fx,fy,cx,cy,k1,k2,p1,p2); its intrinsics are held fixed.
@@ -240,6 +256,11 @@ impl OptionArgs {
         sift.upright = self.upright;
         sift.ignore_regions_px = self.ignore_regions.iter().map(|r| r.0).collect();
         options.features.max_image_size_px = self.max_image_size;
+        options.features.learned_input = match self.learned_input {
+            LearnedInputArg::Stretched => LearnedInput::Stretched,
+            LearnedInputArg::Equalized => LearnedInput::Equalized,
+            LearnedInputArg::Raw => LearnedInput::Raw,
+        };
         options.pairs.exhaustive_max_images = self.exhaustive_max_images;
         options.pairs.window = self.window;
         options.pairs.loop_period = self.loop_period;

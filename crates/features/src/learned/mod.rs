@@ -4,10 +4,12 @@
 //! return [`LearnedFeatures`] in the rolled image's pixel-corner frame.
 
 mod aliked;
+mod contrast;
 mod resize;
 mod xfeat;
 
 pub use aliked::Aliked;
+pub use contrast::{equalize, stretch, LearnedInput};
 pub use resize::{rolled, Planar};
 pub use xfeat::{XFeat, XFeatOptions};
 
@@ -15,25 +17,40 @@ use image::RgbImage;
 use revisit_core::{LearnedFeatures, Roll};
 use revisit_onnx::OnnxError;
 
-/// A learned feature extractor chosen by name.
-pub enum LearnedExtractor {
+/// A learned feature extractor chosen by name, and what it is given of each image.
+pub struct LearnedExtractor {
+    network: Network,
+    input: LearnedInput,
+}
+
+enum Network {
     Aliked(Aliked),
     XFeat(XFeat),
 }
 
 impl LearnedExtractor {
-    /// Features of `image` rolled by `roll`.
+    pub fn aliked(aliked: Aliked, input: LearnedInput) -> LearnedExtractor {
+        LearnedExtractor { network: Network::Aliked(aliked), input }
+    }
+
+    pub fn xfeat(xfeat: XFeat, input: LearnedInput) -> LearnedExtractor {
+        LearnedExtractor { network: Network::XFeat(xfeat), input }
+    }
+
+    /// Features of `image` (prepared as the input says) rolled by `roll`.
     pub fn extract(&mut self, image: &RgbImage, roll: Roll) -> Result<LearnedFeatures, OnnxError> {
-        match self {
-            LearnedExtractor::Aliked(aliked) => aliked.extract(image, roll),
-            LearnedExtractor::XFeat(xfeat) => xfeat.extract(image, roll),
+        let prepared = self.input.prepare(image);
+        let image = prepared.as_ref().unwrap_or(image);
+        match &mut self.network {
+            Network::Aliked(aliked) => aliked.extract(image, roll),
+            Network::XFeat(xfeat) => xfeat.extract(image, roll),
         }
     }
 
     pub fn descriptor_dim(&self) -> usize {
-        match self {
-            LearnedExtractor::Aliked(_) => aliked::DESCRIPTOR_DIM,
-            LearnedExtractor::XFeat(_) => xfeat::DESCRIPTOR_DIM,
+        match self.network {
+            Network::Aliked(_) => aliked::DESCRIPTOR_DIM,
+            Network::XFeat(_) => xfeat::DESCRIPTOR_DIM,
         }
     }
 }
