@@ -43,8 +43,8 @@ const STRETCH_TAIL: f64 = 0.01;
 const CLAHE_CLIP: f64 = 2.0;
 const CLAHE_GRID: (usize, usize) = (8, 8);
 
-/// `image` with each channel mapped linearly so that its [`STRETCH_TAIL`]
-/// and 1 - [`STRETCH_TAIL`] quantiles become 0 and 255. Deterministic.
+/// `image` with each channel mapped linearly so that its `STRETCH_TAIL`
+/// and 1 - `STRETCH_TAIL` quantiles become 0 and 255. Deterministic.
 pub fn stretch(image: &RgbImage) -> RgbImage {
     let mut stretched = image.clone();
     for channel in 0..3 {
