@@ -102,9 +102,10 @@ pub struct FeatureOptions {
     /// Images whose larger side exceeds this are downscaled for SIFT
     /// (keypoints are reported in full-resolution pixels). Default 3200.
     pub max_image_size_px: u32,
-    /// What the learned extractor is given of each image: by default each
-    /// channel stretched between its percentiles (`revisit_features::learned::stretch`),
-    /// so that visits under other light, water and colour look alike.
+    /// What the learned extractor is given of each image: by default the
+    /// image as it is; or each channel stretched between its percentiles
+    /// (`revisit_features::learned::stretch`), so that visits under other
+    /// light, water and colour look alike.
     pub learned_input: LearnedInput,
 }
 

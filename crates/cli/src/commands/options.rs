@@ -16,7 +16,8 @@ use crate::commands::models::{cross_strategies, learned_methods};
 #[derive(Clone, Copy, clap::ValueEnum)]
 enum LearnedInputArg {
     /// Each channel stretched linearly between its 1st and 99th percentiles:
-    /// a visit's colour cast, haze and light level taken out.
+    /// a visit's colour cast, haze and light level taken out (more right
+    /// cross-visit matches; README).
     Stretched,
     /// Stretched, then CLAHE on the luminance (more matches, right and
     /// wrong; README).
@@ -190,7 +191,7 @@ pub struct OptionArgs {
     #[arg(long, default_value_t = 3200, value_name = "PX")]
     max_image_size: u32,
     /// What the learned extractor sees of each image.
-    #[arg(long, value_enum, default_value = "stretched")]
+    #[arg(long, value_enum, default_value = "raw")]
     learned_input: LearnedInputArg,
     /// A calibrated camera, [SESSION[/CAMERA]=]MODEL:PARAMS in COLMAP's
     /// parameter order (e.g. PINHOLE:fx,fy,cx,cy or

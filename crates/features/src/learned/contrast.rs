@@ -2,8 +2,8 @@
 //! light, water and colour look alike to the network.
 //!
 //! [`stretch`]: each colour channel mapped linearly from its 1st to its 99th
-//! percentile (takes out a visit's colour cast, haze and light level; the
-//! default). [`equalize`]: stretched, then CLAHE (OpenCV's contrast-limited
+//! percentile (takes out a visit's colour cast, haze and light level).
+//! [`equalize`]: stretched, then CLAHE (OpenCV's contrast-limited
 //! adaptive histogram equalization, clip 2, 8 x 8 tiles, as
 //! `kornia_imgproc::clahe` computes it) on the luminance, applied to the three
 //! channels as one gain per pixel (the hues stay): more matches than the
@@ -17,10 +17,10 @@ use serde::{Deserialize, Serialize};
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash, Serialize, Deserialize)]
 #[serde(rename_all = "kebab-case")]
 pub enum LearnedInput {
-    /// The image as it is.
-    Raw,
-    /// Each channel stretched between its percentiles ([`stretch`]): the default.
+    /// The image as it is: the default.
     #[default]
+    Raw,
+    /// Each channel stretched between its percentiles ([`stretch`]).
     Stretched,
     /// Stretched, then CLAHE on the luminance ([`equalize`]).
     Equalized,
