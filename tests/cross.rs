@@ -92,6 +92,12 @@ fn strong_change_links_with_place_recognition_and_roll_search() {
         .collect();
     let predicted = cross.iter().filter(|r| r.predicted_roll_deg.is_some()).count();
     assert!(2 * predicted > cross.len(), "{predicted} of {} cross-visit pairs predicted", cross.len());
+    // The matcher ran at least once a pair, and fewer times than if every pair had been probed at
+    // four rolls and then searched at all four (the most a pair can cost).
+    let matching = &report["cross"]["learned_matching"];
+    let (runs, done) = (matching["matcher_runs"].as_u64().unwrap(), matching["done"].as_u64().unwrap());
+    println!("learned matching: {runs} matcher runs for {done} pairs");
+    assert!(done <= runs && runs < 8 * done, "{runs} matcher runs for {done} pairs");
     let verified: Vec<u64> =
         cross.iter().filter(|r| r.num_inliers > 0).map(|r| revisit_core::pair_id(r.image_id1, r.image_id2)).collect();
     drop(store);

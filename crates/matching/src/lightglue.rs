@@ -41,6 +41,7 @@ pub struct LightGlue {
     descriptor_dim: usize,
     /// Minimum exp(score) of a match.
     pub threshold: f32,
+    runs: usize,
 }
 
 impl LightGlue {
@@ -61,7 +62,14 @@ impl LightGlue {
             model: Model::open(runtime, path, contract)?,
             descriptor_dim,
             threshold: DEFAULT_MATCH_THRESHOLD,
+            runs: 0,
         })
+    }
+
+    /// How many times the network has run since the matcher was opened (a pair matched at
+    /// several rolls runs it once per roll): the unit of learned matching's cost.
+    pub fn runs(&self) -> usize {
+        self.runs
     }
 
     /// The raw log-assignment matrix, (len(a) + 1) x (len(b) + 1), row-major.
@@ -98,6 +106,7 @@ impl LightGlue {
         for (name, view) in inputs {
             checked.push((name, view.map_err(|e| bad(format!("input {name}: {e}")))?));
         }
+        self.runs += 1;
         let scores = self.model.run(&checked, &["scores"])?.remove("scores").unwrap_or_default();
         self.model.check_output("scores", scores.shape(), &[Some(1), Some(a.len() + 1), Some(b.len() + 1)])?;
         Ok(scores.into_iter().collect())

@@ -114,6 +114,7 @@ fn roll_search_finds_the_roll_of_a_rotated_real_pair() {
     let off =
         revisit_matching::match_with_rolls(&mut matcher, &a, &b_by_roll, RollSearch::Off, DEFAULT_ROLL_MARGIN, &verify)
             .unwrap();
+    assert_eq!(matcher.runs(), 1, "one roll, one run");
     let full = revisit_matching::match_with_rolls(
         &mut matcher,
         &a,
@@ -123,6 +124,7 @@ fn roll_search_finds_the_roll_of_a_rotated_real_pair() {
         &verify,
     )
     .unwrap();
+    assert_eq!(matcher.runs(), 1 + 4, "the full search runs once per roll");
     let probe = revisit_matching::match_with_rolls(
         &mut matcher,
         &a,

@@ -424,6 +424,18 @@ fn read_pair_inputs(
     })
 }
 
+/// What [`match_learned_pairs`] did: pairs matched (`done`) and found stored (`reused`), and how
+/// many times the learned matcher ran for them (a pair searched at several rolls runs it once per
+/// roll tried, probes included), the cost of the roll search in matches.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct LearnedMatchingCounts {
+    pub done: usize,
+    pub reused: usize,
+    #[serde(default)]
+    pub matcher_runs: usize,
+}
+
 /// Cross-visit pairs matched with the roll search (probed), per two parts of
 /// two visits that have no consensus yet, before the next look for one: two
 /// true pairs make a consensus even with a wrong one among them.
@@ -453,7 +465,8 @@ pub fn match_learned_pairs(
     options: &CrossOptions,
     progress: &dyn Progress,
     cancel: &Cancel,
-) -> Result<StageCounts, PipelineError> {
+) -> Result<LearnedMatchingCounts, PipelineError> {
+    let runs_before: usize = matchers.iter().map(LightGlue::runs).sum();
     let finished = store.matched_pairs()?;
     let todo: Vec<&LearnedPair> =
         pairs.iter().filter(|p| !finished.contains(&pair_id(p.image_id1, p.image_id2))).collect();
@@ -524,7 +537,9 @@ pub fn match_learned_pairs(
         tracing::info!(predicted, searched, "cross-visit rolls");
     }
     progress.finish();
-    Ok(counts)
+    let matcher_runs = matchers.iter().map(LightGlue::runs).sum::<usize>() - runs_before;
+    tracing::info!(pairs = counts.done, matcher_runs, "learned matching done");
+    Ok(LearnedMatchingCounts { done: counts.done, reused: counts.reused, matcher_runs })
 }
 
 /// The store's verified pairs as the consistency check sees them (the turn

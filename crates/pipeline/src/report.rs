@@ -10,7 +10,7 @@ use revisit_core::{CameraId, PairKind};
 use revisit_matching::consistency::Placement;
 use serde::{Deserialize, Serialize};
 
-use crate::cross::ConsistencyCounts;
+use crate::cross::{ConsistencyCounts, LearnedMatchingCounts};
 use crate::options::ReconstructOptions;
 use crate::{PipelineError, StageCounts};
 
@@ -92,7 +92,7 @@ pub struct PairReport {
 pub struct CrossReport {
     pub learned_features: Option<StageCounts>,
     pub places: Option<StageCounts>,
-    pub learned_matching: Option<StageCounts>,
+    pub learned_matching: Option<LearnedMatchingCounts>,
     /// Verified cross-visit pairs checked against their rolls and each other before mapping.
     pub consistency: Option<ConsistencyCounts>,
 }

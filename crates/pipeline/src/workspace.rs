@@ -501,7 +501,7 @@ impl Workspace {
         places: Option<&Places>,
         progress: &dyn Progress,
         cancel: &Cancel,
-    ) -> Result<StageCounts, PipelineError> {
+    ) -> Result<cross::LearnedMatchingCounts, PipelineError> {
         let options = &self.options;
         let nearby = match options.places.navigation_radius_m {
             Some(radius_m) => {

@@ -139,6 +139,8 @@ struct RollFigures {
     /// The `vpr` run's learned matching time per cross-visit pair (stored,
     /// verified and checked: the whole cost).
     default_secs: f64,
+    /// The `vpr` run's learned matcher runs per cross-visit pair (1 = one match a pair).
+    default_runs_per_pair: f64,
     same_roll_share_of_verified: f64,
     same_roll_share_of_all: f64,
     probe_fell_back: usize,
@@ -250,7 +252,12 @@ fn strategy_figures(name: &str, report: &Report, out: &Path, truth: &Path) -> Re
         far_wrong_cross_pairs_mapped: wrong_over(FAR_WRONG_PAIR_ERROR_PX),
         cross_inliers: cross.iter().map(|r| r.num_inliers).sum(),
         sessions: report.sessions.len(),
-        sessions_in_chosen_model: report.sessions.values().filter(|s| s.registered > 0).count(),
+        // A visit reported unlinked is not in the model, whatever stray image of it is.
+        sessions_in_chosen_model: report
+            .sessions
+            .iter()
+            .filter(|(name, s)| s.registered > 0 && !report.unlinked_sessions.contains(*name))
+            .count(),
         models: report.models,
         median_cross_error_px: median,
         clicks_scored: scored,
@@ -416,6 +423,10 @@ fn roll_figures(report: &Report, out: &Path, truth: &Path, tools: &ToolArgs) -> 
         default_same_roll_share_of_verified: 0.0,
         default_same_roll_share_of_both: 0.0,
         default_secs: report.seconds.get("learned_matching").copied().unwrap_or(0.0) / pairs.len().max(1) as f64,
+        default_runs_per_pair: report
+            .cross
+            .learned_matching
+            .map_or(0.0, |m| m.matcher_runs as f64 / m.done.max(1) as f64),
         same_roll_share_of_verified: 0.0,
         same_roll_share_of_all: 0.0,
         probe_fell_back: 0,
@@ -604,14 +615,16 @@ fn print_figures(f: &Figures) {
         );
         println!(
             "roll search cost per pair: one match {:.2} s, full search {:.2} s ({:.2}x), probe {:.2} s ({:.2}x), \
-             default {:.2} s ({:.2}x, the vpr run's whole learned matching a pair; goal <= {MAX_ROLL_COST}x)",
+             default {:.2} s ({:.2}x, the vpr run's whole learned matching a pair, {:.2} matcher runs; goal <= \
+             {MAX_ROLL_COST}x)",
             r.one_match_secs,
             r.full_search_secs,
             r.full_search_secs / r.one_match_secs.max(1e-9),
             r.probe_search_secs,
             r.probe_search_secs / r.one_match_secs.max(1e-9),
             r.default_secs,
-            r.default_secs / r.one_match_secs.max(1e-9)
+            r.default_secs / r.one_match_secs.max(1e-9),
+            r.default_runs_per_pair
         );
     }
     for e in &f.extraction {
