@@ -436,6 +436,13 @@ pub struct LearnedMatchingCounts {
     pub matcher_runs: usize,
 }
 
+impl LearnedMatchingCounts {
+    /// The matcher's runs per pair matched (1: one match a pair); `None` when none was matched.
+    pub fn runs_per_pair(&self) -> Option<f64> {
+        (self.done > 0).then(|| self.matcher_runs as f64 / self.done as f64)
+    }
+}
+
 /// Cross-visit pairs matched with the roll search (probed), per two parts of
 /// two visits that have no consensus yet, before the next look for one: two
 /// true pairs make a consensus even with a wrong one among them.

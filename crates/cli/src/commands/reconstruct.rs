@@ -178,8 +178,7 @@ fn print_summary(report: &Report, work: &Path) {
     if !report.rolls.is_empty() {
         println!("cross pairs by roll: {:?}", report.rolls);
     }
-    if let Some(m) = report.cross.learned_matching.filter(|m| m.done > 0) {
-        let per_pair = m.matcher_runs as f64 / m.done as f64;
+    if let Some((m, per_pair)) = report.cross.learned_matching.and_then(|m| Some((m, m.runs_per_pair()?))) {
         println!("learned matching: {} pairs matched, {} matcher runs ({per_pair:.2} a pair)", m.done, m.matcher_runs);
     }
     if let Some(c) = report.cross.consistency.filter(|c| c.inconsistent() > 0) {

@@ -423,10 +423,7 @@ fn roll_figures(report: &Report, out: &Path, truth: &Path, tools: &ToolArgs) -> 
         default_same_roll_share_of_verified: 0.0,
         default_same_roll_share_of_both: 0.0,
         default_secs: report.seconds.get("learned_matching").copied().unwrap_or(0.0) / pairs.len().max(1) as f64,
-        default_runs_per_pair: report
-            .cross
-            .learned_matching
-            .map_or(0.0, |m| m.matcher_runs as f64 / m.done.max(1) as f64),
+        default_runs_per_pair: report.cross.learned_matching.and_then(|m| m.runs_per_pair()).unwrap_or(0.0),
         same_roll_share_of_verified: 0.0,
         same_roll_share_of_all: 0.0,
         probe_fell_back: 0,
