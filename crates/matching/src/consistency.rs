@@ -23,9 +23,9 @@
 //!    when one offset holds more than half of the weight and at least two
 //!    pairs, a pair more than `tolerance_deg` away from it is off the
 //!    consensus. Around a cycle of visits the offsets must add up: the clear
-//!    ones (twice the weight for as against) are chained through the
-//!    surest, and a pair of visits whose own offset disagrees with the chain,
-//!    or that has none, is held to the chain's.
+//!    ones (three pairs or more, twice the weight for as against) are chained
+//!    through the surest, and a pair of visits whose own offset disagrees with
+//!    the chain, or that has none, is held to the chain's.
 //! 3. **The navigation agrees** (when both images have a navigated position):
 //!    a downward camera's centre sits above the ground its image centre shows,
 //!    so the pair's matches say where each image sees the other's centre
@@ -328,7 +328,7 @@ fn consensus(members: &[Offset], tolerance_deg: f64) -> Option<Consensus> {
     let (deg, support) = mode(&offsets, &weights, tolerance_deg);
     let supporters = offsets.iter().filter(|o| angle_between(**o, deg) <= tolerance_deg).count();
     let against = weights.iter().sum::<f64>() - support;
-    (supporters >= 2 && support > against).then_some(Consensus { deg, support, against })
+    (supporters >= 2 && support > against).then_some(Consensus { deg, support, against, supporters })
 }
 
 /// An offset most of the votes between two parts agree on, with the weight for and against it.
@@ -337,15 +337,25 @@ struct Consensus {
     deg: f64,
     support: f64,
     against: f64,
+    /// The voting pairs that agree with it.
+    supporters: usize,
 }
 
 impl Consensus {
-    /// Clear enough to predict pairs from: at least twice the weight for as against. A narrower
-    /// one (two wrong pairs that happen to agree, one right and one wrong) waits for more votes.
+    /// Clear enough to predict pairs from: at least [`MIN_CLEAR_SUPPORTERS`] pairs agree, with at
+    /// least twice the weight for as against. A narrower one (two wrong pairs that happen to
+    /// agree, one right and one wrong) waits for more votes.
     fn is_clear(&self) -> bool {
-        self.support >= 2.0 * self.against
+        self.supporters >= MIN_CLEAR_SUPPORTERS && self.support >= 2.0 * self.against
     }
 }
+
+/// Pairs that must agree on an offset before it predicts. Two are not enough: on the scaling
+/// study's 3 x 64 survey two wrong pairs of the first and third visits (274 and 441 px off their
+/// true epipolar lines) agreed on a roll with nothing against them; chained with the first and
+/// second visits' offset, they predicted every pair of the second and third at a wrong roll, and
+/// the third visit was left out.
+const MIN_CLEAR_SUPPORTERS: usize = 3;
 
 /// The heading offsets between connected parts of visits that their clear
 /// consensuses ([`Consensus::is_clear`]) imply together. Each measures one
@@ -797,6 +807,22 @@ impl Predictor {
         let offset = self.frames.offset(root_e, root_l)?;
         Some(wrap(offset + heading_l - heading_e))
     }
+
+    /// The turn at which to match `pair` again, when it is a learned
+    /// cross-visit pair that was searched (matched at a roll of its own
+    /// choosing, before its visits' offset was settled) and its matches turn
+    /// further than `tolerance_deg` from what the clear consensuses now
+    /// imply. Such a pair won at a roll its visits do not have: two images of
+    /// different places, or the right two at a wrong roll, and verification
+    /// alone cannot tell which. `None` for a pair that agrees, that was
+    /// matched at a prediction, or that no consensus reaches.
+    pub fn settled_turn(&self, pair: &CheckedPair, tolerance_deg: f64) -> Option<f64> {
+        if pair.kind != PairKind::Cross || pair.roll.is_none() || pair.predicted {
+            return None;
+        }
+        let predicted = self.turn(pair.image_id1, pair.image_id2)?;
+        (angle_between(pair.turn.deg, predicted) > tolerance_deg).then_some(predicted)
+    }
 }
 
 /// Each image's heading (degrees) within its visit, relative to the root of
@@ -985,15 +1011,19 @@ mod tests {
 
     #[test]
     fn the_offsets_between_visits_add_up_around_a_cycle() {
-        // Three visits of two images each, headed 0, 90 and 180 degrees.
-        let visit_of: BTreeMap<ImageId, usize> = [(1, 0), (2, 0), (11, 1), (12, 1), (21, 2), (22, 2)].into();
+        // Three visits of three images each, headed 0, 90 and 180 degrees.
+        let visit_of: BTreeMap<ImageId, usize> =
+            [(1, 0), (2, 0), (3, 0), (11, 1), (12, 1), (13, 1), (21, 2), (22, 2), (23, 2)].into();
         let cross = |a, b, deg, roll, inliers| CheckedPair { inliers, ..pair(a, b, PairKind::Cross, deg, Some(roll)) };
-        let chains = [(1, 2), (11, 12), (21, 22)].map(|(a, b)| pair(a, b, PairKind::Intra, 0.0, None));
+        let chains = [(1, 2), (2, 3), (11, 12), (12, 13), (21, 22), (22, 23)]
+            .map(|(a, b)| pair(a, b, PairKind::Intra, 0.0, None));
         let clear = [
             cross(1, 21, 180.0, Roll::R180, 80),
             cross(2, 22, 181.0, Roll::R180, 90),
+            cross(3, 23, 179.0, Roll::R180, 85),
             cross(11, 21, 90.0, Roll::R270, 80),
             cross(12, 22, 89.0, Roll::R270, 70),
+            cross(13, 23, 91.0, Roll::R270, 75),
         ];
         // Visits 0 and 1 by two wrong pairs that agree, narrowly, and two that do not.
         let narrow = [
@@ -1008,6 +1038,9 @@ mod tests {
         };
         // Visits 0 and 1 without a pair of their own: predicted through visit 2.
         assert!(predicted(&clear).is_some_and(|deg| angle_between(deg, 90.0) < 2.0), "{:?}", predicted(&clear));
+        // Two pairs that agree, with nothing against them, are not yet clear: two wrong pairs can.
+        let two_each = [clear[0], clear[1], clear[3], clear[4]];
+        assert_eq!(predicted(&two_each), None);
         // A narrow consensus predicts nothing, and the pairs matched at a roll predicted from it do not
         // make it clearer: they agree with it by construction.
         assert_eq!(predicted(&narrow), None);
@@ -1016,12 +1049,23 @@ mod tests {
         assert_eq!(predicted(&[narrow.as_slice(), &echoes].concat()), None);
         // With the clear ones, the path through visit 2 wins over the narrow consensus.
         let all: Vec<CheckedPair> = chains.iter().chain(&clear).chain(&narrow).copied().collect();
-        assert!(predicted(&all[3..]).is_some_and(|deg| angle_between(deg, 90.0) < 2.0));
+        assert!(predicted(&all[chains.len()..]).is_some_and(|deg| angle_between(deg, 90.0) < 2.0));
         let verdicts =
             check_cross_pairs(&all, &visit_of, DEFAULT_CONSISTENCY_TOLERANCE_DEG, &Navigation::default(), 0.0);
         let off: Vec<usize> =
             verdicts.iter().filter(|v| matches!(v.1, Verdict::OffConsensus { .. })).map(|v| v.0).collect();
-        assert_eq!(off, vec![7, 8, 9, 10], "{verdicts:?}");
+        let narrow_at = chains.len() + clear.len();
+        assert_eq!(off, (narrow_at..narrow_at + narrow.len()).collect::<Vec<_>>(), "{verdicts:?}");
+        // Once settled, the searched pairs that turn otherwise are matched again at the settled
+        // turn (90 degrees, from visit 0 to visit 1); the ones that agree, and any pair matched at
+        // a prediction, are not.
+        let predictor = Predictor::new(&all, &visit_of, DEFAULT_CONSISTENCY_TOLERANCE_DEG);
+        let again: Vec<Option<f64>> =
+            narrow.iter().map(|p| predictor.settled_turn(p, DEFAULT_CONSISTENCY_TOLERANCE_DEG)).collect();
+        assert!(again.iter().all(|t| t.is_some_and(|deg| angle_between(deg, 90.0) < 2.0)), "{again:?}");
+        assert_eq!(predictor.settled_turn(&clear[0], DEFAULT_CONSISTENCY_TOLERANCE_DEG), None);
+        let echo = CheckedPair { predicted: true, ..narrow[0] };
+        assert_eq!(predictor.settled_turn(&echo, DEFAULT_CONSISTENCY_TOLERANCE_DEG), None);
     }
 
     #[test]

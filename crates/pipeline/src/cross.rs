@@ -432,6 +432,10 @@ fn read_pair_inputs(
 pub struct LearnedMatchingCounts {
     pub done: usize,
     pub reused: usize,
+    /// Searched pairs matched again at the roll their visits' offset settled on
+    /// ([`Predictor::settled_turn`]); matched or reused, and counted there too.
+    #[serde(default)]
+    pub rematched: usize,
     #[serde(default)]
     pub matcher_runs: usize,
 }
@@ -460,8 +464,10 @@ const BOOTSTRAP_PAIRS: usize = 3;
 /// heading offset is matched at the roll that offset predicts, and
 /// a few (`BOOTSTRAP_PAIRS`) more of each pair of visits (of connected parts) still
 /// without one are searched, the nearest places first (by
-/// [`LearnedPair::rank`]). The rounds depend only on what is stored, so the
-/// result is the same on any number of workers.
+/// [`LearnedPair::rank`]). Then the searched pairs whose matches turn
+/// otherwise than their visits' settled offset are matched again at the
+/// roll it predicts ([`Predictor::settled_turn`]). The rounds depend only on
+/// what is stored, so the result is the same on any number of workers.
 #[allow(clippy::too_many_arguments)] // the stage's inputs, each needed
 pub fn match_learned_pairs(
     store: &mut Store,
@@ -503,9 +509,11 @@ pub fn match_learned_pairs(
             cancel,
         )
     };
+    let mut rematched = 0;
     if !matches!(options.roll_search, RollSearch::Predict { .. }) {
         let batch: Vec<_> = todo.into_iter().map(|p| (p, None)).collect();
         run(store, &batch)?;
+        progress.finish();
     } else {
         let (intra, mut waiting): (Vec<&LearnedPair>, Vec<&LearnedPair>) =
             todo.into_iter().partition(|p| p.kind == PairKind::Intra);
@@ -542,11 +550,38 @@ pub fn match_learned_pairs(
             waiting = later;
         }
         tracing::info!(predicted, searched, "cross-visit rolls");
+        progress.finish();
+        // Settled: a pair searched before its visits' offset was clear, whose matches turn
+        // otherwise, is matched again at the settled roll (until none is left: a pair matched
+        // at a prediction is never again, so a run resumed or extended settles the same pairs).
+        loop {
+            turns.update(store)?;
+            let predictor = Predictor::new(&turns.checked(), &turns.visit_of, options.consistency_tolerance_deg);
+            let tolerance_deg = options.consistency_tolerance_deg;
+            let batch: Vec<_> = pairs
+                .iter()
+                .filter_map(|pair| {
+                    let checked = turns.pairs.get(&pair_id(pair.image_id1, pair.image_id2))?.as_ref()?;
+                    let turn_deg = predictor.settled_turn(checked, tolerance_deg)?;
+                    Some((pair, Some(Prediction { turn_deg, tolerance_deg })))
+                })
+                .collect();
+            if batch.is_empty() {
+                break;
+            }
+            tracing::info!(pairs = batch.len(), "cross-visit pairs matched again at their settled roll");
+            progress.start("learned matching at settled rolls", batch.len() as u64);
+            run(store, &batch)?;
+            progress.finish();
+            for (pair, _) in &batch {
+                turns.pairs.remove(&pair_id(pair.image_id1, pair.image_id2));
+            }
+            rematched += batch.len();
+        }
     }
-    progress.finish();
     let matcher_runs = matchers.iter().map(LightGlue::runs).sum::<usize>() - runs_before;
-    tracing::info!(pairs = counts.done, matcher_runs, "learned matching done");
-    Ok(LearnedMatchingCounts { done: counts.done, reused: counts.reused, matcher_runs })
+    tracing::info!(pairs = counts.done, rematched, matcher_runs, "learned matching done");
+    Ok(LearnedMatchingCounts { done: counts.done, reused: counts.reused, rematched, matcher_runs })
 }
 
 /// The store's verified pairs as the consistency check sees them (the turn

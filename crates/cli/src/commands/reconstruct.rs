@@ -179,7 +179,14 @@ fn print_summary(report: &Report, work: &Path) {
         println!("cross pairs by roll: {:?}", report.rolls);
     }
     if let Some((m, per_pair)) = report.cross.learned_matching.and_then(|m| Some((m, m.runs_per_pair()?))) {
-        println!("learned matching: {} pairs matched, {} matcher runs ({per_pair:.2} a pair)", m.done, m.matcher_runs);
+        let again = match m.rematched {
+            0 => String::new(),
+            n => format!(", {n} searched pairs matched again at their visits' settled roll"),
+        };
+        println!(
+            "learned matching: {} pairs matched, {} matcher runs ({per_pair:.2} a pair){again}",
+            m.done, m.matcher_runs
+        );
     }
     if let Some(c) = report.cross.consistency.filter(|c| c.inconsistent() > 0) {
         let fate = match c.set_aside {
