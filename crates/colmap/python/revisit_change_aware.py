@@ -478,16 +478,10 @@ def adjust(model, constant, threads):
     pycolmap.create_default_bundle_adjuster(options, config, model).solve()
 
 
-def register_left_out(model, database, options, placed, visit_of_image):
-    """Registers, as COLMAP's incremental mapper would (2D-3D RANSAC, then its observations
-    triangulated), the images of placed visits that their visit could not map alone. Returns
-    how many joined."""
+def mapper_on(model, database):
+    """COLMAP's incremental mapper, begun on `model` with the store's matches."""
     import pycolmap
 
-    missing = [i for i, visit in sorted(visit_of_image.items())
-               if visit in placed and not (model.exists_image(i) and model.images[i].has_pose)]
-    if not missing:
-        return 0
     db = pycolmap.Database.open(str(database))
     try:
         cache = pycolmap.DatabaseCache.create(db, pycolmap.DatabaseCacheOptions())
@@ -495,6 +489,18 @@ def register_left_out(model, database, options, placed, visit_of_image):
         db.close()
     mapper = pycolmap.IncrementalMapper(cache)
     mapper.begin_reconstruction(model)
+    return mapper
+
+
+def register_left_out(model, database, options, placed, visit_of_image):
+    """Registers, as COLMAP's incremental mapper would (2D-3D RANSAC, then its observations
+    triangulated), the images of placed visits that their visit could not map alone. Returns
+    how many joined."""
+    missing = [i for i, visit in sorted(visit_of_image.items())
+               if visit in placed and not (model.exists_image(i) and model.images[i].has_pose)]
+    if not missing:
+        return 0
+    mapper = mapper_on(model, database)
     joined = 0
     for image_id in missing:
         if mapper.register_next_image(options.get_mapper(), image_id):
@@ -512,15 +518,7 @@ def adjust_and_filter(model, database, options):
     observation still a few pixels off is most often a match on structure that changed (a grown
     coral's top), which the plain solve would bend the visits to fit. Tracks are not merged or
     completed again: that would let those matches back in."""
-    import pycolmap
-
-    db = pycolmap.Database.open(str(database))
-    try:
-        cache = pycolmap.DatabaseCache.create(db, pycolmap.DatabaseCacheOptions())
-    finally:
-        db.close()
-    mapper = pycolmap.IncrementalMapper(cache)
-    mapper.begin_reconstruction(model)
+    mapper = mapper_on(model, database)
     mapper_options = options.get_mapper()
     mapper_options.filter_max_reproj_error = FILTER_MAX_REPROJ_ERROR_PX
     filtered = 0
