@@ -808,20 +808,19 @@ impl Predictor {
         Some(wrap(offset + heading_l - heading_e))
     }
 
-    /// The turn at which to match `pair` again, when it is a learned
-    /// cross-visit pair that was searched (matched at a roll of its own
-    /// choosing, before its visits' offset was settled) and its matches turn
-    /// further than `tolerance_deg` from what the clear consensuses now
-    /// imply. Such a pair won at a roll its visits do not have: two images of
-    /// different places, or the right two at a wrong roll, and verification
-    /// alone cannot tell which. `None` for a pair that agrees, that was
-    /// matched at a prediction, or that no consensus reaches.
-    pub fn settled_turn(&self, pair: &CheckedPair, tolerance_deg: f64) -> Option<f64> {
+    /// Whether `pair` is to be matched again at the turn [`Predictor::turn`]
+    /// gives it: a learned cross-visit pair that was searched (matched at a
+    /// roll of its own choosing, before its visits' offset was settled) and
+    /// whose matches turn further than `tolerance_deg` from what the clear
+    /// consensuses now imply. Such a pair won at a roll its visits do not
+    /// have: two images of different places, or the right two at a wrong
+    /// roll, and verification alone cannot tell which. Not a pair that
+    /// agrees, that was matched at a prediction, or that no consensus reaches.
+    pub fn needs_settling(&self, pair: &CheckedPair, tolerance_deg: f64) -> bool {
         if pair.kind != PairKind::Cross || pair.roll.is_none() || pair.predicted {
-            return None;
+            return false;
         }
-        let predicted = self.turn(pair.image_id1, pair.image_id2)?;
-        (angle_between(pair.turn.deg, predicted) > tolerance_deg).then_some(predicted)
+        self.turn(pair.image_id1, pair.image_id2).is_some_and(|t| angle_between(pair.turn.deg, t) > tolerance_deg)
     }
 }
 
@@ -1060,12 +1059,11 @@ mod tests {
         // turn (90 degrees, from visit 0 to visit 1); the ones that agree, and any pair matched at
         // a prediction, are not.
         let predictor = Predictor::new(&all, &visit_of, DEFAULT_CONSISTENCY_TOLERANCE_DEG);
-        let again: Vec<Option<f64>> =
-            narrow.iter().map(|p| predictor.settled_turn(p, DEFAULT_CONSISTENCY_TOLERANCE_DEG)).collect();
-        assert!(again.iter().all(|t| t.is_some_and(|deg| angle_between(deg, 90.0) < 2.0)), "{again:?}");
-        assert_eq!(predictor.settled_turn(&clear[0], DEFAULT_CONSISTENCY_TOLERANCE_DEG), None);
-        let echo = CheckedPair { predicted: true, ..narrow[0] };
-        assert_eq!(predictor.settled_turn(&echo, DEFAULT_CONSISTENCY_TOLERANCE_DEG), None);
+        let settling = |p: &CheckedPair| predictor.needs_settling(p, DEFAULT_CONSISTENCY_TOLERANCE_DEG);
+        assert!(narrow.iter().all(settling));
+        assert!(predictor.turn(1, 12).is_some_and(|deg| angle_between(deg, 90.0) < 2.0));
+        assert!(!settling(&clear[0]));
+        assert!(!settling(&CheckedPair { predicted: true, ..narrow[0] }));
     }
 
     #[test]

@@ -433,7 +433,7 @@ pub struct LearnedMatchingCounts {
     pub done: usize,
     pub reused: usize,
     /// Searched pairs matched again at the roll their visits' offset settled on
-    /// ([`Predictor::settled_turn`]); matched or reused, and counted there too.
+    /// ([`Predictor::needs_settling`]); matched or reused, and counted there too.
     #[serde(default)]
     pub rematched: usize,
     #[serde(default)]
@@ -466,7 +466,7 @@ const BOOTSTRAP_PAIRS: usize = 3;
 /// without one are searched, the nearest places first (by
 /// [`LearnedPair::rank`]). Then the searched pairs whose matches turn
 /// otherwise than their visits' settled offset are matched again at the
-/// roll it predicts ([`Predictor::settled_turn`]). The rounds depend only on
+/// roll it predicts ([`Predictor::needs_settling`]). The rounds depend only on
 /// what is stored, so the result is the same on any number of workers.
 #[allow(clippy::too_many_arguments)] // the stage's inputs, each needed
 pub fn match_learned_pairs(
@@ -562,7 +562,11 @@ pub fn match_learned_pairs(
                 .iter()
                 .filter_map(|pair| {
                     let checked = turns.pairs.get(&pair_id(pair.image_id1, pair.image_id2))?.as_ref()?;
-                    let turn_deg = predictor.settled_turn(checked, tolerance_deg)?;
+                    if !predictor.needs_settling(checked, tolerance_deg) {
+                        return None;
+                    }
+                    // From the planned pair's first image (the store keeps a pair by its image ids).
+                    let turn_deg = predictor.turn(pair.image_id1, pair.image_id2)?;
                     Some((pair, Some(Prediction { turn_deg, tolerance_deg })))
                 })
                 .collect();
