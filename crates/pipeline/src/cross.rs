@@ -554,10 +554,10 @@ pub fn match_learned_pairs(
         // Settled: a pair searched before its visits' offset was clear, whose matches turn
         // otherwise, is matched again at the settled roll (until none is left: a pair matched
         // at a prediction is never again, so a run resumed or extended settles the same pairs).
+        let tolerance_deg = options.consistency_tolerance_deg;
         loop {
             turns.update(store)?;
-            let predictor = Predictor::new(&turns.checked(), &turns.visit_of, options.consistency_tolerance_deg);
-            let tolerance_deg = options.consistency_tolerance_deg;
+            let predictor = Predictor::new(&turns.checked(), &turns.visit_of, tolerance_deg);
             let batch: Vec<_> = pairs
                 .iter()
                 .filter_map(|pair| {
