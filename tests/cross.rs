@@ -161,6 +161,61 @@ fn strong_change_links_with_place_recognition_and_roll_search() {
     assert!(error < 2.0, "change-aware: median cross-session reprojection error {error} px");
 }
 
+/// A visit of another site cannot be linked: its pairs with the first visit are searched only
+/// within a budget (no common heading shows), the rest are left unmatched, the visit is
+/// reported unlinked rather than merged, and a second run matches nothing again.
+#[test]
+fn a_visit_of_another_site_is_searched_within_a_budget_and_reported_unlinked() {
+    let dir = tempfile::tempdir().unwrap();
+    let site = |seed: &str| {
+        let reef = dir.path().join(format!("reef{seed}"));
+        let out = reef.to_str().unwrap();
+        run_ok(&[
+            "synth",
+            "--out",
+            out,
+            "--sessions",
+            "2",
+            "--images-per-session",
+            "8",
+            "--change",
+            "strong",
+            "--seed",
+            seed,
+        ]);
+        reef
+    };
+    let (here, elsewhere) = (site("0"), site("1"));
+    let work = dir.path().join("work");
+    let args = [
+        "reconstruct".to_owned(),
+        "--out".into(),
+        work.display().to_string(),
+        "--camera".into(),
+        common::camera(&here),
+        "--session".into(),
+        format!("here={}", here.join("sessions/s1").display()),
+        "--session".into(),
+        format!("elsewhere={}", elsewhere.join("sessions/s2").display()),
+    ];
+    let args: Vec<&str> = args.iter().map(String::as_str).collect();
+    run_ok(&args);
+    let report = read_json(&work.join("report.json"));
+    assert_eq!(report["unlinked_sessions"], serde_json::json!(["elsewhere"]), "{report:#}");
+    assert_eq!(report["sessions"]["elsewhere"]["registered"], 0, "{report:#}");
+    let matching = &report["cross"]["learned_matching"];
+    let (searched, unlinked) =
+        (report["pairs"]["cross"]["tried"].as_u64().unwrap(), matching["unlinked"].as_u64().unwrap());
+    println!("another site: {searched} cross-visit pairs searched, {unlinked} left unmatched");
+    assert!(searched > 0 && unlinked > searched, "{report:#}");
+
+    run_ok(&args);
+    let again = read_json(&work.join("report.json"));
+    assert_eq!(again["cross"]["learned_matching"]["done"], 0, "{again:#}");
+    assert_eq!(again["cross"]["learned_matching"]["unlinked"], unlinked, "{again:#}");
+    assert_eq!(again["pairs"]["cross"]["tried"], searched, "{again:#}");
+}
+
 #[test]
 fn cross_visit_bad_input_gets_one_line_errors() {
     let dir = tempfile::tempdir().unwrap();

@@ -438,6 +438,11 @@ pub struct LearnedMatchingCounts {
     pub rematched: usize,
     #[serde(default)]
     pub matcher_runs: usize,
+    /// Planned pairs left unmatched: their two visits' parts showed no clear offset within
+    /// their search budget ([`search_budget`]), and none chained through other visits
+    /// predicts them. Not in `done`.
+    #[serde(default)]
+    pub unlinked: usize,
 }
 
 impl LearnedMatchingCounts {
@@ -451,6 +456,17 @@ impl LearnedMatchingCounts {
 /// two visits that have no consensus yet, before the next look for one: two
 /// true pairs make a consensus even with a wrong one among them.
 const BOOTSTRAP_PAIRS: usize = 3;
+
+/// The most pairs searched between two parts of two visits while they show no clear offset:
+/// an eighth of the pairs planned between them, and at least four rounds of
+/// [`BOOTSTRAP_PAIRS`]. A searched pair costs about four matches to a predicted pair's one, so
+/// an eighth keeps the whole at about 1.3 matches a pair; linkable visits found their offset
+/// within it on every survey measured (3 x 64: 18 of 320 and 22 of 283 pairs searched), while
+/// visits that cannot be linked were searched to their last pair, each verified one a likely
+/// wrong pair (`--change storm`, seed 5: 13 of 60).
+pub fn search_budget(planned: usize) -> usize {
+    (planned / 8).max(4 * BOOTSTRAP_PAIRS)
+}
 
 /// Matches every planned pair not yet in the store with the learned matcher
 /// ([`match_learned_pair`]: roll search on cross-visit pairs, anchoring,
@@ -466,8 +482,12 @@ const BOOTSTRAP_PAIRS: usize = 3;
 /// without one are searched, the nearest places first (by
 /// [`LearnedPair::rank`]). Then the searched pairs whose matches turn
 /// otherwise than their visits' settled offset are matched again at the
-/// roll it predicts ([`Predictor::needs_settling`]). The rounds depend only on
-/// what is stored, so the result is the same on any number of workers.
+/// roll it predicts ([`Predictor::needs_settling`]). Two parts that show no
+/// clear offset within their [`search_budget`] are searched no further: their
+/// pairs wait for an offset chained through other visits, and are left
+/// unmatched (`unlinked`) if none comes. The rounds depend only on what is
+/// stored, so the result is the same on any number of workers, and a resumed
+/// run searches no pair a finished one would not.
 #[allow(clippy::too_many_arguments)] // the stage's inputs, each needed
 pub fn match_learned_pairs(
     store: &mut Store,
@@ -509,7 +529,7 @@ pub fn match_learned_pairs(
             cancel,
         )
     };
-    let mut rematched = 0;
+    let (mut rematched, mut unlinked) = (0, 0);
     if !matches!(options.roll_search, RollSearch::Predict { .. }) {
         let batch: Vec<_> = todo.into_iter().map(|p| (p, None)).collect();
         run(store, &batch)?;
@@ -527,6 +547,13 @@ pub fn match_learned_pairs(
             let predictor = Predictor::new(&turns.checked(), &turns.visit_of, options.consistency_tolerance_deg);
             let mut batch = Vec::new();
             let mut later = Vec::new();
+            // Per two parts: the pairs planned, and those searched so far (by this run or one before).
+            let mut by_parts: BTreeMap<Option<(ImageId, ImageId)>, (usize, usize)> = BTreeMap::new();
+            for pair in pairs.iter().filter(|p| p.kind == PairKind::Cross) {
+                let counts = by_parts.entry(predictor.parts(pair.image_id1, pair.image_id2)).or_default();
+                counts.0 += 1;
+                counts.1 += usize::from(turns.searched.contains(&pair_id(pair.image_id1, pair.image_id2)));
+            }
             let mut bootstrapping: BTreeMap<Option<(ImageId, ImageId)>, usize> = BTreeMap::new();
             for pair in waiting {
                 let (a, b) = (pair.image_id1, pair.image_id2);
@@ -536,8 +563,10 @@ pub fn match_learned_pairs(
                     predicted += 1;
                     continue;
                 }
-                let started = bootstrapping.entry(predictor.parts(a, b)).or_default();
-                if *started < BOOTSTRAP_PAIRS {
+                let parts = predictor.parts(a, b);
+                let (planned, searched_before) = by_parts.get(&parts).copied().unwrap_or_default();
+                let started = bootstrapping.entry(parts).or_default();
+                if *started < BOOTSTRAP_PAIRS && searched_before + *started < search_budget(planned) {
                     *started += 1;
                     batch.push((pair, None));
                     searched += 1;
@@ -546,10 +575,14 @@ pub fn match_learned_pairs(
                 }
             }
             tracing::debug!(pairs = batch.len(), waiting = later.len(), "cross-visit round");
+            if batch.is_empty() {
+                unlinked = later.len();
+                break;
+            }
             run(store, &batch)?;
             waiting = later;
         }
-        tracing::info!(predicted, searched, "cross-visit rolls");
+        tracing::info!(predicted, searched, unlinked, "cross-visit rolls");
         progress.finish();
         // Settled: a pair searched before its visits' offset was clear, whose matches turn
         // otherwise, is matched again at the settled roll (until none is left: a pair matched
@@ -584,8 +617,8 @@ pub fn match_learned_pairs(
         }
     }
     let matcher_runs = matchers.iter().map(LightGlue::runs).sum::<usize>() - runs_before;
-    tracing::info!(pairs = counts.done, rematched, matcher_runs, "learned matching done");
-    Ok(LearnedMatchingCounts { done: counts.done, reused: counts.reused, rematched, matcher_runs })
+    tracing::info!(pairs = counts.done - unlinked, rematched, unlinked, matcher_runs, "learned matching done");
+    Ok(LearnedMatchingCounts { done: counts.done - unlinked, reused: counts.reused, rematched, matcher_runs, unlinked })
 }
 
 /// The store's verified pairs as the consistency check sees them (the turn
@@ -595,6 +628,8 @@ struct PairTurns {
     /// Each image's centre, pixels.
     centres: BTreeMap<ImageId, [f64; 2]>,
     pairs: BTreeMap<u64, Option<CheckedPair>>,
+    /// The cross-visit pairs stored without a prediction (searched), verified or not.
+    searched: BTreeSet<u64>,
 }
 
 impl PairTurns {
@@ -609,7 +644,7 @@ impl PairTurns {
                 })
             })
             .collect();
-        PairTurns { visit_of, centres, pairs: BTreeMap::new() }
+        PairTurns { visit_of, centres, pairs: BTreeMap::new(), searched: BTreeSet::new() }
     }
 
     /// Reads the pairs stored since the last update.
@@ -619,6 +654,10 @@ impl PairTurns {
         for record in store.pair_records()? {
             let (a, b) = (record.image_id1, record.image_id2);
             let id = pair_id(a, b);
+            match record.kind == PairKind::Cross && record.predicted_roll_deg.is_none() {
+                true => self.searched.insert(id),
+                false => self.searched.remove(&id),
+            };
             if self.pairs.contains_key(&id) {
                 continue;
             }

@@ -179,10 +179,16 @@ fn print_summary(report: &Report, work: &Path) {
         println!("cross pairs by roll: {:?}", report.rolls);
     }
     if let Some((m, per_pair)) = report.cross.learned_matching.and_then(|m| Some((m, m.runs_per_pair()?))) {
-        let again = match m.rematched {
+        let mut again = match m.rematched {
             0 => String::new(),
             n => format!(", {n} searched pairs matched again at their visits' settled roll"),
         };
+        if m.unlinked > 0 {
+            again += &format!(
+                ", {} pairs left unmatched (their visits showed no common heading within the search budget)",
+                m.unlinked
+            );
+        }
         println!(
             "learned matching: {} pairs matched, {} matcher runs ({per_pair:.2} a pair){again}",
             m.done, m.matcher_runs
