@@ -208,6 +208,8 @@ fn a_visit_of_another_site_is_searched_within_a_budget_and_reported_unlinked() {
         (report["pairs"]["cross"]["tried"].as_u64().unwrap(), matching["unlinked"].as_u64().unwrap());
     println!("another site: {searched} cross-visit pairs searched, {unlinked} left unmatched");
     assert!(searched > 0 && unlinked > searched, "{report:#}");
+    // Whatever verified between the two sites is not mapped.
+    assert_eq!(report["cross"]["consistency"]["set_aside"], report["pairs"]["cross"]["verified"], "{report:#}");
 
     run_ok(&args);
     let again = read_json(&work.join("report.json"));

@@ -724,15 +724,19 @@ pub struct ConsistencyCounts {
     /// Confirmed: consistent, and most of their loops close.
     #[serde(default)]
     pub confirmed: usize,
+    /// Inconsistent: weak pairs of visits that show no clear heading offset
+    /// ([`Verdict::Unlinked`]).
+    #[serde(default)]
+    pub unlinked: usize,
     /// Inconsistent pairs set aside (not mapped): every one when asked for,
-    /// those off the navigation when mapping change-aware.
+    /// those off the navigation when mapping change-aware, the unlinked ones always.
     pub set_aside: usize,
 }
 
 impl ConsistencyCounts {
     /// The inconsistent pairs, whatever the rule.
     pub fn inconsistent(&self) -> usize {
-        self.roll_disagrees + self.off_consensus + self.off_navigation + self.off_loops
+        self.roll_disagrees + self.off_consensus + self.off_navigation + self.off_loops + self.unlinked
     }
 }
 
@@ -740,8 +744,10 @@ impl ConsistencyCounts {
 /// against the other pairs and against the navigation priors in the store
 /// ([`revisit_matching::consistency`]) and logs each inconsistent one. With
 /// `options.set_aside_inconsistent` every inconsistent pair is set aside
-/// (COLMAP does not see it; the store keeps it), and with `change_aware`
-/// mapping those off the navigation are; every other pair set aside before is
+/// (COLMAP does not see it; the store keeps it), with `change_aware`
+/// mapping those off the navigation are, and the weak pairs of visits that
+/// show no clear offset always are (they merged wrong places on every survey
+/// measured, [`consistency::UNLINKED_MIN_INLIERS`]); every other pair set aside before is
 /// put back (a visit added since can settle a consensus, and the options can
 /// change). Deterministic: the same store gives the same verdicts.
 ///
@@ -776,6 +782,7 @@ pub fn check_consistency(
         let pair = &checked[index];
         let id = pair_id(pair.image_id1, pair.image_id2);
         let off_navigation = matches!(verdict, Verdict::OffNavigation { .. });
+        let unlinked = matches!(verdict, Verdict::Unlinked { .. });
         let reason = match verdict {
             Verdict::Consistent => continue,
             Verdict::Confirmed { .. } => {
@@ -799,9 +806,16 @@ pub fn check_consistency(
                 counts.off_loops += 1;
                 format!("{missed} of the {} loops it makes with other cross-visit pairs miss", missed + closed)
             }
+            Verdict::Unlinked { inliers } => {
+                counts.unlinked += 1;
+                format!(
+                    "its visits' pairs agree on no heading offset, and it holds {inliers} inliers (fewer than {})",
+                    consistency::UNLINKED_MIN_INLIERS
+                )
+            }
         };
         let (a, b) = (&names[&pair.image_id1], &names[&pair.image_id2]);
-        if options.set_aside_inconsistent || (off_navigation && change_aware) {
+        if options.set_aside_inconsistent || (off_navigation && change_aware) || unlinked {
             tracing::warn!("cross-visit pair {a} - {b} set aside: {reason}");
             if aside.remove(&id).is_none() {
                 store.set_aside(id, &reason)?;

@@ -198,12 +198,15 @@ fn print_summary(report: &Report, work: &Path) {
         let fate = match c.set_aside {
             0 => "mapped all the same (--set-aside-inconsistent sets them aside)".to_owned(),
             n if n == c.inconsistent() => "set aside, not mapped".to_owned(),
-            n => format!("{n} off the navigation set aside (change-aware), the others mapped all the same"),
+            n => format!(
+                "{n} set aside (unlinked, or off the navigation when change-aware), the others mapped all the same"
+            ),
         };
         println!(
             "inconsistent cross pairs: {} at odds with their roll, {} with their visits' other pairs, {} with the \
-             navigation, {} with their loops (of {} checked; each is logged): {fate}",
-            c.roll_disagrees, c.off_consensus, c.off_navigation, c.off_loops, c.checked
+             navigation, {} with their loops, {} weak between visits that agree on no heading (of {} checked; each \
+             is logged): {fate}",
+            c.roll_disagrees, c.off_consensus, c.off_navigation, c.off_loops, c.unlinked, c.checked
         );
     }
     println!("models: {} (sizes {:?})", report.models, report.model_sizes);
