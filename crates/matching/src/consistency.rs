@@ -426,7 +426,7 @@ pub fn check_cross_pairs(
     navigation: &Navigation,
     loop_tolerance: f64,
 ) -> Vec<(usize, Verdict)> {
-    let Votes { mut verdicts, groups, .. } = votes(pairs, visit_of);
+    let Votes { mut verdicts, groups, headings } = votes(pairs, visit_of);
     let frames = PartFrames::new(&groups, tolerance_deg);
     for (&(earlier, later), members) in &groups {
         // The clear consensuses' offset, or the pairs' own narrow one.
@@ -458,17 +458,16 @@ pub fn check_cross_pairs(
             }
         }
     }
-    for (&(earlier, later), members) in &groups {
-        if frames.offset(earlier, later).is_some() {
+    for (index, verdict) in &mut verdicts {
+        let pair = &pairs[*index];
+        let (Some((part1, _)), Some((part2, _))) = (headings.get(&pair.image_id1), headings.get(&pair.image_id2))
+        else {
             continue;
-        }
-        for member in members {
-            let pair = &pairs[member.index];
-            let Ok(at) = verdicts.binary_search_by_key(&member.index, |v| v.0) else { continue };
-            let confirmed = matches!(verdicts[at].1, Verdict::Confirmed { .. });
-            if !confirmed && !pair.predicted && pair.inliers < UNLINKED_MIN_INLIERS {
-                verdicts[at].1 = Verdict::Unlinked { inliers: pair.inliers };
-            }
+        };
+        let linked = frames.offset(*part1, *part2).is_some();
+        let confirmed = matches!(verdict, Verdict::Confirmed { .. });
+        if !linked && !confirmed && !pair.predicted && pair.inliers < UNLINKED_MIN_INLIERS {
+            *verdict = Verdict::Unlinked { inliers: pair.inliers };
         }
     }
     verdicts
@@ -1103,6 +1102,8 @@ mod tests {
             cross(1, 11, 270.0, Roll::R90, 33),
             cross(2, 12, 0.0, Roll::R0, UNLINKED_MIN_INLIERS - 1),
             cross(3, 13, 180.0, Roll::R180, UNLINKED_MIN_INLIERS),
+            // Matched at a roll its matches do not show, as well.
+            cross(1, 13, 202.0, Roll::R90, 40),
         ];
         let verdicts_of = |cross_pairs: &[CheckedPair]| {
             let pairs: Vec<CheckedPair> = chains.iter().chain(cross_pairs).copied().collect();
@@ -1112,7 +1113,12 @@ mod tests {
         };
         assert_eq!(
             verdicts_of(&searched),
-            [(0, Verdict::Unlinked { inliers: 33 }), (1, Verdict::Unlinked { inliers: 44 }), (2, Verdict::Consistent)]
+            [
+                (0, Verdict::Unlinked { inliers: 33 }),
+                (1, Verdict::Unlinked { inliers: 44 }),
+                (2, Verdict::Consistent),
+                (3, Verdict::Unlinked { inliers: 40 })
+            ]
         );
         // A pair matched at a prediction is not judged so (it agreed with an offset once clear).
         let echo = CheckedPair { predicted: true, ..searched[0] };
