@@ -458,14 +458,13 @@ impl LearnedMatchingCounts {
 const BOOTSTRAP_PAIRS: usize = 3;
 
 /// The most pairs searched between two parts of two visits while they show no clear offset:
-/// an eighth of the pairs planned between them, and at least four rounds of
-/// [`BOOTSTRAP_PAIRS`]. A searched pair costs about four matches to a predicted pair's one, so
-/// an eighth keeps the whole at about 1.3 matches a pair; linkable visits found their offset
-/// within it on every survey measured (3 x 64: 18 of 320 and 22 of 283 pairs searched), while
-/// visits that cannot be linked were searched to their last pair, each verified one a likely
-/// wrong pair (`--change storm`, seed 5: 13 of 60).
+/// a quarter of the pairs planned between them, and at least four rounds of
+/// `BOOTSTRAP_PAIRS`. Without a bound, visits that cannot be linked were searched to their
+/// last pair (4 to 8 matcher runs each), every pair verified a likely wrong one (`--change
+/// storm`, seed 5: 13 of 60 pairs, none right). An eighth was too little: the 3 x 64 survey's
+/// second and third visits, linkable, had no offset after 35 of their 283 pairs.
 pub fn search_budget(planned: usize) -> usize {
-    (planned / 8).max(4 * BOOTSTRAP_PAIRS)
+    (planned / 4).max(4 * BOOTSTRAP_PAIRS)
 }
 
 /// Matches every planned pair not yet in the store with the learned matcher
