@@ -133,24 +133,24 @@ impl LearnedPairMatch {
 /// already holds) with image `b` (learned features at each roll the search
 /// needs, and its keypoints): a cross-visit pair at the `predicted` roll
 /// when there is one ([`match_at_prediction`]), else with
-/// `options.roll_search`; a pair within a visit at roll 0 only. Then
+/// `options.roll_search` (from `place_roll`, place recognition's, when it
+/// searches in order); a pair within a visit at roll 0 only. Then
 /// [`accept`] judges the result.
 pub fn match_learned_pair(
     matcher: &mut LightGlue,
     a: (&LearnedFeatures, &[Keypoint]),
     b: (&[(Roll, LearnedFeatures)], &[Keypoint]),
     kind: PairKind,
-    predicted: Option<&Prediction>,
+    (predicted, place_roll): (Option<&Prediction>, Option<Roll>),
     options: &CrossOptions,
 ) -> Result<LearnedPairMatch, OnnxError> {
+    let search = |matcher: &mut LightGlue, search: RollSearch| {
+        match_with_rolls(matcher, a.0, b.0, search, place_roll, options.roll_margin, &options.verify)
+    };
     let found = match (kind, predicted) {
         (PairKind::Cross, Some(prediction)) => match_at_prediction(matcher, a.0, b.0, prediction, &options.verify)?,
-        (PairKind::Cross, None) => {
-            match_with_rolls(matcher, a.0, b.0, options.roll_search, options.roll_margin, &options.verify)?
-        }
-        (PairKind::Intra, _) => {
-            match_with_rolls(matcher, a.0, b.0, RollSearch::Off, options.roll_margin, &options.verify)?
-        }
+        (PairKind::Cross, None) => search(matcher, options.roll_search)?,
+        (PairKind::Intra, _) => search(matcher, RollSearch::Off)?,
     };
     Ok(judge(&found, a, b, options))
 }
@@ -308,6 +308,6 @@ mod tests {
         assert!(CrossOptions::default().check().is_ok());
         assert!(CrossOptions { roll_margin: 0.5, ..Default::default() }.check().is_err());
         assert!(CrossOptions { roll_search: RollSearch::Probe { budget: 4 }, ..Default::default() }.check().is_err());
-        assert!(CrossOptions { roll_search: RollSearch::Predict { budget: 4 }, ..Default::default() }.check().is_err());
+        assert!(CrossOptions { roll_search: RollSearch::Predict, ..Default::default() }.check().is_ok());
     }
 }

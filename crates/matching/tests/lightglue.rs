@@ -111,29 +111,22 @@ fn roll_search_finds_the_roll_of_a_rotated_real_pair() {
     let b_by_roll: Vec<(Roll, LearnedFeatures)> =
         Roll::ALL.iter().map(|&roll| (roll, aliked.extract(&b_image, roll).unwrap())).collect();
     let verify = VerifyOptions::default();
-    let off =
-        revisit_matching::match_with_rolls(&mut matcher, &a, &b_by_roll, RollSearch::Off, DEFAULT_ROLL_MARGIN, &verify)
-            .unwrap();
+    let search = |matcher: &mut LightGlue, search: RollSearch, place_roll: Option<Roll>| {
+        revisit_matching::match_with_rolls(matcher, &a, &b_by_roll, search, place_roll, DEFAULT_ROLL_MARGIN, &verify)
+            .unwrap()
+    };
+    let off = search(&mut matcher, RollSearch::Off, None);
     assert_eq!(matcher.runs(), 1, "one roll, one run");
-    let full = revisit_matching::match_with_rolls(
-        &mut matcher,
-        &a,
-        &b_by_roll,
-        RollSearch::Full,
-        DEFAULT_ROLL_MARGIN,
-        &verify,
-    )
-    .unwrap();
+    let full = search(&mut matcher, RollSearch::Full, None);
     assert_eq!(matcher.runs(), 1 + 4, "the full search runs once per roll");
-    let probe = revisit_matching::match_with_rolls(
-        &mut matcher,
-        &a,
-        &b_by_roll,
-        RollSearch::PROBE,
-        DEFAULT_ROLL_MARGIN,
-        &verify,
-    )
-    .unwrap();
+    let probe = search(&mut matcher, RollSearch::PROBE, None);
+    // Searched from place recognition's roll: stopped there when it is right, at the right roll
+    // (the second tried) when place recognition's is wrong.
+    for (place_roll, runs) in [(Roll::R90, 1), (Roll::R0, 2)] {
+        let before = matcher.runs();
+        let ranked = search(&mut matcher, RollSearch::Predict, Some(place_roll));
+        assert_eq!((ranked.roll, matcher.runs() - before), (Roll::R90, runs), "{:?}", ranked.inliers_by_roll);
+    }
     assert_eq!(full.roll, Roll::R90, "{:?}", full.inliers_by_roll);
     assert_eq!(probe.roll, Roll::R90, "{:?}", probe.inliers_by_roll);
     let inliers = full.geometry.inlier_matches.len();

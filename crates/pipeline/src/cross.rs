@@ -241,6 +241,9 @@ pub struct LearnedPair {
     /// Where image 1 stands among image 2's place-recognition candidates
     /// (0: the nearest); 0 for a pair not chosen by place recognition.
     pub rank: usize,
+    /// Image 2's roll whose place descriptor was nearest image 1's, for a
+    /// pair chosen by place recognition: where a roll search begins.
+    pub place_roll: Option<Roll>,
 }
 
 /// Where the vehicle's navigation puts each image, and how near two images must be to show the
@@ -290,7 +293,7 @@ pub fn plan_learned_pairs(
 ) -> Vec<LearnedPair> {
     let mut pairs = BTreeSet::new();
     let ids: Vec<Vec<ImageId>> = sessions.iter().map(|s| s.images.iter().map(|i| i.id).collect()).collect();
-    let pair = |a, b, kind| LearnedPair { image_id1: a, image_id2: b, kind, rank: 0 };
+    let pair = |a, b, kind| LearnedPair { image_id1: a, image_id2: b, kind, rank: 0, place_roll: None };
     for (v, later) in ids.iter().enumerate() {
         let earlier: Vec<ImageId> = ids[..v].iter().flatten().copied().collect();
         match strategy {
@@ -310,13 +313,22 @@ pub fn plan_learned_pairs(
                 let allows = |a, b| nearby.is_none_or(|nearby| nearby.allows(a, b));
                 for (b, found) in place_candidates(sessions, places, candidates, v) {
                     let ranked = found.into_iter().enumerate().filter(|(_, (a, _))| allows(*a, b));
-                    pairs.extend(ranked.map(|(rank, (a, _))| LearnedPair { rank, ..pair(a, b, PairKind::Cross) }));
+                    pairs.extend(ranked.map(|(rank, (a, candidate))| LearnedPair {
+                        rank,
+                        place_roll: Some(candidate.roll),
+                        ..pair(a, b, PairKind::Cross)
+                    }));
                 }
                 for (b, nearby) in later.iter().filter_map(|b| Some((*b, nearby?))) {
                     for a in nearby.nearest(b, &earlier, candidates.top_k) {
+                        // The pair at any rank and place roll.
                         let (first, last) = (
                             pair(a, b, PairKind::Cross),
-                            LearnedPair { rank: usize::MAX, ..pair(a, b, PairKind::Cross) },
+                            LearnedPair {
+                                rank: usize::MAX,
+                                place_roll: Some(Roll::R270),
+                                ..pair(a, b, PairKind::Cross)
+                            },
                         );
                         if pairs.range(first..=last).next().is_none() {
                             pairs.insert(first);
@@ -452,7 +464,7 @@ impl LearnedMatchingCounts {
     }
 }
 
-/// Cross-visit pairs matched with the roll search (probed), per two parts of
+/// Cross-visit pairs matched with the roll search (searched), per two parts of
 /// two visits that have no consensus yet, before the next look for one: two
 /// true pairs make a consensus even with a wrong one among them.
 const BOOTSTRAP_PAIRS: usize = 3;
@@ -515,11 +527,10 @@ pub fn match_learned_pairs(
             |store, i| read_pair_inputs(store, batch[i].0, batch[i].1.as_ref(), method, options),
             |matcher, i, PairInputs { a, b_by_roll, own_a, own_b }| {
                 let (pair, predicted) = &batch[i];
-                match_learned_pair(matcher, (&a, &own_a), (&b_by_roll, &own_b), pair.kind, predicted.as_ref(), options)
-                    .map_err(|e| PipelineError::Matching {
-                        pair: (pair.image_id1, pair.image_id2),
-                        reason: e.to_string(),
-                    })
+                let roll = (predicted.as_ref(), pair.place_roll);
+                match_learned_pair(matcher, (&a, &own_a), (&b_by_roll, &own_b), pair.kind, roll, options).map_err(|e| {
+                    PipelineError::Matching { pair: (pair.image_id1, pair.image_id2), reason: e.to_string() }
+                })
             },
             |store, i, matched| {
                 write_learned_pair(store, batch[i].0, method, &matched)?;
@@ -530,7 +541,7 @@ pub fn match_learned_pairs(
         )
     };
     let (mut rematched, mut unlinked) = (0, 0);
-    if !matches!(options.roll_search, RollSearch::Predict { .. }) {
+    if options.roll_search != RollSearch::Predict {
         let batch: Vec<_> = todo.into_iter().map(|p| (p, None)).collect();
         run(store, &batch)?;
         progress.finish();

@@ -109,15 +109,16 @@ impl Learned {
     }
 
     /// Matches `a` with the second image's features at the rolls `search`
-    /// needs (roll search alone, without anchoring or acceptance).
+    /// needs, from `place_roll` when it searches in order (roll search alone,
+    /// without anchoring or acceptance).
     pub fn match_rolls(
         &mut self,
         a: &LearnedFeatures,
         b_by_roll: &[(Roll, LearnedFeatures)],
-        search: RollSearch,
+        (search, place_roll): (RollSearch, Option<Roll>),
         roll_margin: f32,
         verify: &VerifyOptions,
     ) -> Result<CrossMatch, OnnxError> {
-        match_with_rolls(&mut self.matcher, a, b_by_roll, search, roll_margin, verify)
+        match_with_rolls(&mut self.matcher, a, b_by_roll, search, place_roll, roll_margin, verify)
     }
 }

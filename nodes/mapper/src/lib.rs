@@ -586,7 +586,10 @@ impl Mapper {
             }
             let answer = messages::cross_match(message)
                 .map_err(|why| revisit_pipeline::PipelineError::Name(format!("matches {image1} - {image2}: {why}")))?;
-            found.push((LearnedPair { image_id1: id1, image_id2: id2, kind: PairKind::Cross, rank: 0 }, answer));
+            found.push((
+                LearnedPair { image_id1: id1, image_id2: id2, kind: PairKind::Cross, rank: 0, place_roll: None },
+                answer,
+            ));
         }
         if !found.is_empty() {
             self.workspace.add_cross_matches(found)?;

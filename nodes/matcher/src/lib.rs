@@ -71,6 +71,9 @@ struct Matcher {
     held: BTreeSet<(String, u32)>,
     /// Pairs asked for and not yet answered.
     pending: BTreeSet<Pair>,
+    /// Each pair's place roll (the later image's roll place recognition found nearest): where
+    /// its roll search begins.
+    place_rolls: BTreeMap<Pair, Roll>,
     answered: BTreeSet<Pair>,
     /// The matchers alive, this one's id among them.
     members: Vec<Guid>,
@@ -100,11 +103,18 @@ pub async fn run(node: &mut Node) -> Result<Summary, NodeError> {
         cache.store().image_ids().map_err(|e| work(e.to_string()))?.into_iter().map(|(name, id)| (id, name)).collect();
     let keys = cache.store().learned_feature_keys(options.learned.name()).map_err(|e| work(e.to_string()))?;
     let held = keys.into_iter().filter_map(|(id, roll)| Some((names.get(&id)?.clone(), roll))).collect();
-    let (mut asked, mut answered) = (BTreeSet::new(), BTreeSet::new());
+    let (mut asked, mut answered, mut place_rolls) = (BTreeSet::new(), BTreeSet::new(), BTreeMap::new());
     for line in lines {
         match line.split('\t').collect::<Vec<_>>()[..] {
             ["asked", a, b] => {
                 asked.insert((a.to_owned(), b.to_owned()));
+            }
+            ["asked", a, b, roll] => {
+                let pair = (a.to_owned(), b.to_owned());
+                if let Some(roll) = roll.parse().ok().and_then(Roll::from_degrees) {
+                    place_rolls.insert(pair.clone(), roll);
+                }
+                asked.insert(pair);
             }
             ["done" | "answered", a, b] => {
                 answered.insert((a.to_owned(), b.to_owned()));
@@ -128,6 +138,7 @@ pub async fn run(node: &mut Node) -> Result<Summary, NodeError> {
         journal,
         held,
         pending: asked.difference(&answered).cloned().collect(),
+        place_rolls,
         answered,
         members: vec![me],
         me,
@@ -210,7 +221,12 @@ impl Matcher {
         for candidate in &message.candidates {
             let pair = (format!("{}/{}", candidate.session, candidate.image_name), later.clone());
             if !self.answered.contains(&pair) && !self.pending.contains(&pair) {
-                self.journal.append(&format!("asked\t{}\t{}", pair.0, pair.1))?;
+                let roll = u32::try_from(candidate.roll_degrees).ok().and_then(Roll::from_degrees);
+                let journalled = roll.map_or(String::new(), |r| format!("\t{}", r.degrees()));
+                self.journal.append(&format!("asked\t{}\t{}{journalled}", pair.0, pair.1))?;
+                if let Some(roll) = roll {
+                    self.place_rolls.insert(pair.clone(), roll);
+                }
                 self.pending.insert(pair);
                 stage.received();
             }
@@ -281,9 +297,10 @@ impl Matcher {
             .iter()
             .map(|r| Ok((*r, read(b, *r)?)))
             .collect::<Result<Vec<_>, NodeError>>()?;
+        let search = (options.roll_search, self.place_rolls.get(&(a.clone(), b.clone())).copied());
         let found = self
             .learned
-            .match_rolls(&features_a, &b_by_roll, options.roll_search, options.roll_margin, &options.verify)
+            .match_rolls(&features_a, &b_by_roll, search, options.roll_margin, &options.verify)
             .map_err(|e| work(e.to_string()))?;
         let split = |name: &str| -> (String, String) {
             let (session, file) = name.split_once('/').unwrap_or(("", name));

@@ -121,8 +121,14 @@ pub fn run(args: Args) -> Result<()> {
                 .iter()
                 .map(|&roll| Ok((roll, learned.extract(&b, roll).with_context(|| args.image_b.display().to_string())?)))
                 .collect::<Result<_>>()?;
-            let pair =
-                match_learned_pair(&mut learned.matcher, (&fa, &[]), (&fb, &[]), PairKind::Cross, None, &options)?;
+            let pair = match_learned_pair(
+                &mut learned.matcher,
+                (&fa, &[]),
+                (&fb, &[]),
+                PairKind::Cross,
+                (None, None),
+                &options,
+            )?;
             for (roll, inliers) in &pair.inliers_by_roll {
                 tracing::info!("roll {:>3}: {inliers} inliers", roll.degrees());
             }

@@ -31,7 +31,9 @@ enum RollSearchArg {
     /// Match at the roll that the two sessions' verified pairs agree on (their
     /// heading offset, chained through each session's own pairs): one match a
     /// pair, two when the predicted turn falls between two rolls; pairs before
-    /// there is agreement are probed. About 3x faster than the probe and keeps
+    /// there is agreement are matched in full from the roll place recognition
+    /// found nearest, until a roll wins clearly (--roll-margin times the
+    /// runner-up and 45 inliers). About 3x faster than the probe and keeps
     /// pairs at a roll other than their visits' out (most of them wrong), so
     /// an image that only such a pair brought into the model may stay out.
     Predict,
@@ -143,7 +145,8 @@ pub struct OptionArgs {
     /// A cross-visit pair is kept only if its roll's inliers are at least R
     /// times those of the runner-up roll (chance matches find about as many
     /// at every roll); a probe that no roll wins by R falls back to the full
-    /// search. 1 turns the check off.
+    /// search, and a search from place recognition's roll stops only at a roll
+    /// with R times the runner-up's and R times 45 inliers. 1 turns the check off.
     #[arg(long, default_value_t = revisit_matching::roll::DEFAULT_ROLL_MARGIN, value_name = "R")]
     roll_margin: f32,
     /// Before mapping, a verified cross-visit pair is reported inconsistent when

@@ -147,9 +147,17 @@ struct RollFigures {
     /// The roll whose place descriptor is nearest (what place recognition
     /// predicts) is the full search's roll: share of the pairs it verifies.
     place_roll_share_of_verified: f64,
+    /// The search of a pair without a prediction (from place recognition's
+    /// roll, stopped at a clear winner): the full search's roll on this share
+    /// of the pairs the full search verifies, and verified too; its matcher
+    /// runs per pair.
+    ranked_same_roll_share_of_verified: f64,
+    ranked_verified_share_of_verified: f64,
+    ranked_runs_per_pair: f64,
     one_match_secs: f64,
     full_search_secs: f64,
     probe_search_secs: f64,
+    ranked_search_secs: f64,
 }
 
 #[derive(Serialize)]
@@ -428,9 +436,13 @@ fn roll_figures(report: &Report, out: &Path, truth: &Path, tools: &ToolArgs) -> 
         same_roll_share_of_all: 0.0,
         probe_fell_back: 0,
         place_roll_share_of_verified: 0.0,
+        ranked_same_roll_share_of_verified: 0.0,
+        ranked_verified_share_of_verified: 0.0,
+        ranked_runs_per_pair: 0.0,
         one_match_secs: 0.0,
         full_search_secs: 0.0,
         probe_search_secs: 0.0,
+        ranked_search_secs: 0.0,
     };
     let places = default_place_descriptors(&store, out)?;
     let place_roll = |a: ImageId, b: ImageId| -> Option<Roll> {
@@ -440,6 +452,7 @@ fn roll_figures(report: &Report, out: &Path, truth: &Path, tools: &ToolArgs) -> 
         nearest(&query, &database, &CandidateOptions { top_k: 1, max_distance: None }).first().map(|c| c.roll)
     };
     let (mut same_verified, mut same_all, mut place_same) = (0, 0, 0);
+    let (mut ranked_same, mut ranked_verified, mut ranked_runs) = (0, 0, 0);
     let (mut default_same, mut both, mut default_same_both) = (0, 0, 0);
     let bar = crate::progress::bar(pairs.len() as u64, "roll search: default and probe vs full");
     for pair in &pairs {
@@ -449,14 +462,19 @@ fn roll_figures(report: &Report, out: &Path, truth: &Path, tools: &ToolArgs) -> 
             .map(|r| Ok((*r, store.read_learned_features(pair.image_id2, method.name(), r.degrees())?)))
             .collect::<Result<Vec<_>>>()?;
         let start = Instant::now();
-        let full = learned.match_rolls(&a, &b_by_roll, RollSearch::Full, margin, &verify)?;
+        let full = learned.match_rolls(&a, &b_by_roll, (RollSearch::Full, None), margin, &verify)?;
         figures.full_search_secs += start.elapsed().as_secs_f64();
         let start = Instant::now();
-        let probe = learned.match_rolls(&a, &b_by_roll, RollSearch::PROBE, margin, &verify)?;
+        let probe = learned.match_rolls(&a, &b_by_roll, (RollSearch::PROBE, None), margin, &verify)?;
         figures.probe_search_secs += start.elapsed().as_secs_f64();
+        let (start, runs_before) = (Instant::now(), learned.matcher.runs());
+        let place = place_roll(pair.image_id1, pair.image_id2);
+        let ranked = learned.match_rolls(&a, &b_by_roll, (RollSearch::Predict, place), margin, &verify)?;
+        figures.ranked_search_secs += start.elapsed().as_secs_f64();
+        ranked_runs += learned.matcher.runs() - runs_before;
         let start = Instant::now();
         let chosen = b_by_roll.iter().find(|(r, _)| *r == full.roll).map_or(&b_by_roll[0], |x| x);
-        learned.match_rolls(&a, std::slice::from_ref(chosen), RollSearch::Off, margin, &verify)?;
+        learned.match_rolls(&a, std::slice::from_ref(chosen), (RollSearch::Off, None), margin, &verify)?;
         figures.one_match_secs += start.elapsed().as_secs_f64();
         figures.probe_fell_back += usize::from(probe.fell_back);
         let agree = probe.roll == full.roll;
@@ -464,7 +482,10 @@ fn roll_figures(report: &Report, out: &Path, truth: &Path, tools: &ToolArgs) -> 
         if !full.geometry.inlier_matches.is_empty() && full.roll_is_clear(margin) {
             figures.verified_by_full += 1;
             same_verified += usize::from(agree);
-            place_same += usize::from(place_roll(pair.image_id1, pair.image_id2) == Some(full.roll));
+            place_same += usize::from(place == Some(full.roll));
+            ranked_same += usize::from(ranked.roll == full.roll);
+            let ranked_verifies = !ranked.geometry.inlier_matches.is_empty() && ranked.roll_is_clear(margin);
+            ranked_verified += usize::from(ranked_verifies && ranked.roll == full.roll);
             let default_agrees = i64::from(pair.roll_deg) == i64::from(full.roll.degrees());
             default_same += usize::from(default_agrees);
             if pair.num_inliers > 0 {
@@ -491,9 +512,13 @@ fn roll_figures(report: &Report, out: &Path, truth: &Path, tools: &ToolArgs) -> 
     figures.default_same_roll_share_of_both = default_same_both as f64 / both.max(1) as f64;
     figures.same_roll_share_of_all = same_all as f64 / n;
     figures.place_roll_share_of_verified = place_same as f64 / figures.verified_by_full.max(1) as f64;
+    figures.ranked_same_roll_share_of_verified = ranked_same as f64 / figures.verified_by_full.max(1) as f64;
+    figures.ranked_verified_share_of_verified = ranked_verified as f64 / figures.verified_by_full.max(1) as f64;
+    figures.ranked_runs_per_pair = ranked_runs as f64 / n;
     figures.one_match_secs /= n;
     figures.full_search_secs /= n;
     figures.probe_search_secs /= n;
+    figures.ranked_search_secs /= n;
     Ok(figures)
 }
 
@@ -609,6 +634,16 @@ fn print_figures(f: &Figures) {
         println!(
             "place recognition's roll (nearest descriptor) is the full search's on {:.1}% of the pairs it verifies",
             100.0 * r.place_roll_share_of_verified
+        );
+        println!(
+            "search without a prediction (from place recognition's roll, stopped at a clear winner): the full \
+             search's roll on {:.1}% of the pairs it verifies, verified there on {:.1}%; {:.2} matcher runs a pair \
+             against 4, {:.2} s ({:.2}x one match)",
+            100.0 * r.ranked_same_roll_share_of_verified,
+            100.0 * r.ranked_verified_share_of_verified,
+            r.ranked_runs_per_pair,
+            r.ranked_search_secs,
+            r.ranked_search_secs / r.one_match_secs.max(1e-9)
         );
         println!(
             "roll search cost per pair: one match {:.2} s, full search {:.2} s ({:.2}x), probe {:.2} s ({:.2}x), \
