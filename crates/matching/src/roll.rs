@@ -146,13 +146,18 @@ impl CrossMatch {
     /// pair that shows no common place every roll finds a few chance inliers,
     /// about as many at each; on a true pair one roll wins clearly.
     pub fn roll_is_clear(&self, margin: f32) -> bool {
-        let mut counts: Vec<usize> = self.inliers_by_roll.iter().map(|(_, n)| *n).collect();
-        counts.sort_unstable_by(|a, b| b.cmp(a));
-        match counts[..] {
-            [best, runner_up, ..] => best as f32 >= margin * runner_up as f32 && best > 0,
+        match best_and_runner_up(&self.inliers_by_roll) {
+            Some((best, Some(runner_up))) => best as f32 >= margin * runner_up as f32 && best > 0,
             _ => true,
         }
     }
+}
+
+/// The most inliers of the rolls `tried`, and the runner-up's (`None` with one roll tried).
+fn best_and_runner_up(tried: &[(Roll, usize)]) -> Option<(usize, Option<usize>)> {
+    let mut counts: Vec<usize> = tried.iter().map(|(_, n)| *n).collect();
+    counts.sort_unstable_by(|a, b| b.cmp(a));
+    counts.first().map(|best| (*best, counts.get(1).copied()))
 }
 
 /// Whether the best of the rolls `tried` wins without trying the others: its
@@ -161,15 +166,9 @@ impl CrossMatch {
 /// seen to verify (30 to 44 on the surveys measured; right pairs hold 30 up,
 /// most over 60). A weaker winner needs every roll tried.
 pub fn wins_clearly(tried: &[(Roll, usize)], margin: f32) -> bool {
-    let mut counts: Vec<usize> = tried.iter().map(|(_, n)| *n).collect();
-    counts.sort_unstable_by(|a, b| b.cmp(a));
-    match counts[..] {
-        [best, ref rest @ ..] => {
-            let against = rest.first().copied().unwrap_or(0).max(UNLINKED_MIN_INLIERS);
-            best as f32 >= margin * against as f32
-        }
-        [] => false,
-    }
+    best_and_runner_up(tried).is_some_and(|(best, runner_up)| {
+        best as f32 >= margin * runner_up.unwrap_or(0).max(UNLINKED_MIN_INLIERS) as f32
+    })
 }
 
 /// Keypoints of `features`, extracted at `roll`, mapped back to the unrolled image.
