@@ -18,6 +18,11 @@ const IMAGES: u64 = 10;
 /// pairs of this reef lie within 9 px, most within 4).
 const FAR_OFF_PAIR_ERROR_PX: f64 = 20.0;
 
+/// A pair whose inliers lie further than this from their epipolar lines under the truth's poses
+/// (median, pixels) is wrong, as issue 11 defines it: most of its matches lie on structure that
+/// changed, or on another place.
+const WRONG_PAIR_ERROR_PX: f64 = 4.0;
+
 /// A right model agrees with the cross-visit pairs the loops confirmed: most of each visit pair's
 /// confirmed pairs have their matches within the tolerance in it.
 fn assert_placement_not_suspect(report: &serde_json::Value) {
@@ -77,6 +82,8 @@ fn strong_change_links_with_place_recognition_and_roll_search() {
     let error = cross_error_px(&reef, &three, &vpr).expect("clicks scored");
     assert!(error < 2.0, "median cross-session reprojection error {error} px after the third visit");
     assert_placement_not_suspect(&report);
+    let registered = |report: &serde_json::Value| three.map(|s| report["sessions"][s]["registered"].as_u64().unwrap());
+    let (plain_error, plain_registered) = (error, registered(&report));
 
     // Most of the third visit's pairs are matched at the roll their visits' other pairs predict,
     // and few of them are far off (the full roll search lets a third through: 26 of 78 on a
@@ -108,7 +115,7 @@ fn strong_change_links_with_place_recognition_and_roll_search() {
 
     // The pairs the consistency check finds at odds with their roll, with their visits' other
     // pairs, with the loops they close with each other or, given the visits' navigation, with
-    // where it puts the cameras are far-off ones;
+    // where it puts the cameras are wrong ones (none of them right by the truth);
     // asked to, it maps without them (nothing else is redone).
     let nav: Vec<String> = three
         .iter()
@@ -125,7 +132,7 @@ fn strong_change_links_with_place_recognition_and_roll_search() {
     drop(store);
     assert_eq!(set_aside.len() as u64, count("set_aside"));
     let set_aside_errors = pair_errors_px(&reef, &vpr, &set_aside);
-    let right = set_aside_errors.iter().filter(|e| **e <= FAR_OFF_PAIR_ERROR_PX).count();
+    let right = set_aside_errors.iter().filter(|e| **e <= WRONG_PAIR_ERROR_PX).count();
     assert!(right == 0, "set aside, with median epipolar errors (px) {set_aside_errors:?}");
     assert_eq!(report["cross"]["learned_matching"]["done"], 0, "{report:#}");
     // The model held those pairs' tracks: it is rebuilt without them, not extended.
@@ -135,10 +142,8 @@ fn strong_change_links_with_place_recognition_and_roll_search() {
 
     // Change-aware mapping on the same store (nothing is matched again): every visit mapped
     // alone and placed by its cross-visit matches' consensus, one joint model over the matches
-    // that hold, each visit pair's kept and dropped matches reported.
-    let plain_error = cross_error_px(&reef, &three, &vpr).expect("clicks scored");
-    let registered = |report: &serde_json::Value| three.map(|s| report["sessions"][s]["registered"].as_u64().unwrap());
-    let plain_registered = registered(&report);
+    // that hold, each visit pair's kept and dropped matches reported; against the plain joint
+    // solve of the three visits above.
     let report = reconstruct(&reef, &three, &vpr, &[&["--change-aware"], &nav[..]].concat());
     assert_eq!(report["cross"]["learned_matching"]["done"], 0, "{report:#}");
     // Without being asked, only the pairs off the navigation stay aside.

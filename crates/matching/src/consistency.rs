@@ -262,8 +262,9 @@ pub enum Verdict {
     OffLoops { missed: usize, closed: usize },
     /// Rule 5: searched, its two visits' pairs show no clear heading offset (not even through
     /// other visits), no loop confirms it, and it holds `inliers`, fewer than
-    /// [`UNLINKED_MIN_INLIERS`] (whatever rules 1 to 4 said of it).
-    Unlinked { inliers: usize },
+    /// [`UNLINKED_MIN_INLIERS`] (whatever rules 1 to 4 said of it), or more but rules 1 to 4
+    /// find it `inconsistent`.
+    Unlinked { inliers: usize, inconsistent: bool },
 }
 
 impl Verdict {
@@ -406,7 +407,9 @@ impl PartFrames {
 /// surveys measured they could not be linked (a storm's first visit; a visit of another site),
 /// and every pair verified between them but one held 30 to 44 inliers and showed another place
 /// (8 of 8 at `--change storm`, seed 5; 5 of 5 for another site). Right pairs of linked visits
-/// hold from 30 up, most of them over 60; a visit with little overlap keeps its strong pairs.
+/// hold from 30 up, most of them over 60; a visit with little overlap keeps its strong pairs,
+/// unless another rule finds them inconsistent: with each image's colours stretched, 3 of the 12
+/// pairs verified between two sites held 45 to 57 inliers, and every loop they made missed.
 pub const UNLINKED_MIN_INLIERS: usize = 45;
 
 /// The verdict on every cross-visit pair of `pairs` (in their order; pairs
@@ -418,7 +421,8 @@ pub const UNLINKED_MIN_INLIERS: usize = 45;
 /// rules pass then close loops with each other (rule 4;
 /// `loop_tolerance` 0: not checked). Of the searched pairs no loop
 /// confirms, those between visits with no clear offset and with fewer than
-/// [`UNLINKED_MIN_INLIERS`] are [`Verdict::Unlinked`] (rule 5).
+/// [`UNLINKED_MIN_INLIERS`], or inconsistent by rules 1 to 4, are
+/// [`Verdict::Unlinked`] (rule 5).
 pub fn check_cross_pairs(
     pairs: &[CheckedPair],
     visit_of: &BTreeMap<ImageId, usize>,
@@ -465,9 +469,9 @@ pub fn check_cross_pairs(
             continue;
         };
         let linked = frames.offset(*part1, *part2).is_some();
-        let confirmed = matches!(verdict, Verdict::Confirmed { .. });
-        if !linked && !confirmed && !pair.predicted && pair.inliers < UNLINKED_MIN_INLIERS {
-            *verdict = Verdict::Unlinked { inliers: pair.inliers };
+        let (confirmed, inconsistent) = (matches!(verdict, Verdict::Confirmed { .. }), !verdict.is_consistent());
+        if !linked && !confirmed && !pair.predicted && (pair.inliers < UNLINKED_MIN_INLIERS || inconsistent) {
+            *verdict = Verdict::Unlinked { inliers: pair.inliers, inconsistent };
         }
     }
     verdicts
@@ -1097,13 +1101,15 @@ mod tests {
         let visit_of: BTreeMap<ImageId, usize> = [(1, 0), (2, 0), (3, 0), (11, 1), (12, 1), (13, 1)].into();
         let cross = |a, b, deg, roll, inliers| CheckedPair { inliers, ..pair(a, b, PairKind::Cross, deg, Some(roll)) };
         let chains = [(1, 2), (2, 3), (11, 12), (12, 13)].map(|(a, b)| pair(a, b, PairKind::Intra, 0.0, None));
-        // Three searched pairs that agree on nothing: the weak ones are unlinked, the strong one stays.
+        // Searched pairs that agree on nothing: the weak ones are unlinked, the strong one stays
+        // unless another rule finds it inconsistent.
         let searched = [
             cross(1, 11, 270.0, Roll::R90, 33),
             cross(2, 12, 0.0, Roll::R0, UNLINKED_MIN_INLIERS - 1),
             cross(3, 13, 180.0, Roll::R180, UNLINKED_MIN_INLIERS),
             // Matched at a roll its matches do not show, as well.
             cross(1, 13, 202.0, Roll::R90, 40),
+            cross(2, 11, 130.0, Roll::R90, 60),
         ];
         let verdicts_of = |cross_pairs: &[CheckedPair]| {
             let pairs: Vec<CheckedPair> = chains.iter().chain(cross_pairs).copied().collect();
@@ -1114,10 +1120,11 @@ mod tests {
         assert_eq!(
             verdicts_of(&searched),
             [
-                (0, Verdict::Unlinked { inliers: 33 }),
-                (1, Verdict::Unlinked { inliers: 44 }),
+                (0, Verdict::Unlinked { inliers: 33, inconsistent: false }),
+                (1, Verdict::Unlinked { inliers: 44, inconsistent: false }),
                 (2, Verdict::Consistent),
-                (3, Verdict::Unlinked { inliers: 40 })
+                (3, Verdict::Unlinked { inliers: 40, inconsistent: true }),
+                (4, Verdict::Unlinked { inliers: 60, inconsistent: true })
             ]
         );
         // A pair matched at a prediction is not judged so (it agreed with an offset once clear).

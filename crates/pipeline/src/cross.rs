@@ -735,8 +735,8 @@ pub struct ConsistencyCounts {
     /// Confirmed: consistent, and most of their loops close.
     #[serde(default)]
     pub confirmed: usize,
-    /// Inconsistent: weak pairs of visits that show no clear heading offset
-    /// ([`Verdict::Unlinked`]).
+    /// Inconsistent: pairs of visits that show no clear heading offset, weak
+    /// or at odds with another rule ([`Verdict::Unlinked`]).
     #[serde(default)]
     pub unlinked: usize,
     /// Inconsistent pairs set aside (not mapped): every one when asked for,
@@ -756,8 +756,8 @@ impl ConsistencyCounts {
 /// ([`revisit_matching::consistency`]) and logs each inconsistent one. With
 /// `options.set_aside_inconsistent` every inconsistent pair is set aside
 /// (COLMAP does not see it; the store keeps it), with `change_aware`
-/// mapping those off the navigation are, and the weak pairs of visits that
-/// show no clear offset always are (they merged wrong places on every survey
+/// mapping those off the navigation are, and the weak or inconsistent pairs
+/// of visits that show no clear offset always are (they merged wrong places on every survey
 /// measured, [`consistency::UNLINKED_MIN_INLIERS`]); every other pair set aside before is
 /// put back (a visit added since can settle a consensus, and the options can
 /// change). Deterministic: the same store gives the same verdicts.
@@ -817,12 +817,13 @@ pub fn check_consistency(
                 counts.off_loops += 1;
                 format!("{missed} of the {} loops it makes with other cross-visit pairs miss", missed + closed)
             }
-            Verdict::Unlinked { inliers } => {
+            Verdict::Unlinked { inliers, inconsistent } => {
                 counts.unlinked += 1;
-                format!(
-                    "its visits' pairs agree on no heading offset, and it holds {inliers} inliers (fewer than {})",
-                    consistency::UNLINKED_MIN_INLIERS
-                )
+                let why = match inconsistent {
+                    true => format!("it holds {inliers} inliers, but is at odds with its roll, its visits' other pairs, the navigation or its loops"),
+                    false => format!("it holds {inliers} inliers (fewer than {})", consistency::UNLINKED_MIN_INLIERS),
+                };
+                format!("its visits' pairs agree on no heading offset, and {why}")
             }
         };
         let (a, b) = (&names[&pair.image_id1], &names[&pair.image_id2]);

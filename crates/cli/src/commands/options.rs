@@ -194,7 +194,7 @@ pub struct OptionArgs {
     #[arg(long, default_value_t = 3200, value_name = "PX")]
     max_image_size: u32,
     /// What the learned extractor sees of each image.
-    #[arg(long, value_enum, default_value = "raw")]
+    #[arg(long, value_enum, default_value = "stretched")]
     learned_input: LearnedInputArg,
     /// A calibrated camera, [SESSION[/CAMERA]=]MODEL:PARAMS in COLMAP's
     /// parameter order (e.g. PINHOLE:fx,fy,cx,cy or

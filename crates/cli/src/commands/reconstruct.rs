@@ -204,8 +204,8 @@ fn print_summary(report: &Report, work: &Path) {
         };
         println!(
             "inconsistent cross pairs: {} at odds with their roll, {} with their visits' other pairs, {} with the \
-             navigation, {} with their loops, {} weak between visits that agree on no heading (of {} checked; each \
-             is logged): {fate}",
+             navigation, {} with their loops, {} between visits that agree on no heading (weak, or at odds with a rule; of {} \
+             checked; each is logged): {fate}",
             c.roll_disagrees, c.off_consensus, c.off_navigation, c.off_loops, c.unlinked, c.checked
         );
     }

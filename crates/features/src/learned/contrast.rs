@@ -17,10 +17,11 @@ use serde::{Deserialize, Serialize};
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash, Serialize, Deserialize)]
 #[serde(rename_all = "kebab-case")]
 pub enum LearnedInput {
-    /// The image as it is: the default.
-    #[default]
+    /// The image as it is.
     Raw,
-    /// Each channel stretched between its percentiles ([`stretch`]).
+    /// Each channel stretched between its percentiles ([`stretch`]): the
+    /// default.
+    #[default]
     Stretched,
     /// Stretched, then CLAHE on the luminance ([`equalize`]).
     Equalized,
