@@ -52,10 +52,18 @@ pub const MAX_CELLS: usize = 16_000_000;
 /// fraction of the survey's altitude.
 #[derive(Clone, Debug, PartialEq, Serialize)]
 pub struct ChangeOptions {
-    /// Spacing of the core points (grid cell side). Default 4% of the altitude.
+    /// Spacing of the core points (grid cell side). Default `cell_of_altitude` of the altitude.
     pub cell: Option<f64>,
-    /// Radius of the cylinder the distance is measured in. Default 8% of the altitude.
+    /// Radius of the cylinder the distance is measured in. Default `radius_of_altitude` of the
+    /// altitude.
     pub radius: Option<f64>,
+    /// The default cell as a fraction of the altitude: 2.5% for dense surfaces (5 cm at 2 m),
+    /// 4% for sparse ones.
+    pub cell_of_altitude: f64,
+    /// The default radius as a fraction of the altitude: 4% for dense surfaces, under the
+    /// smallest colonies' reach (12-20 cm at 2 m) so that the median in a cylinder on one stands
+    /// on it; 8% for sparse ones, which hold few points in a smaller cylinder.
+    pub radius_of_altitude: f64,
     /// Radius of the neighbourhood of visit A's points a normal is fitted to. Default 50% of
     /// the altitude: large against a coral, so normals follow the reef, not a colony's flank.
     pub normal_radius: Option<f64>,
@@ -79,33 +87,43 @@ pub struct ChangeOptions {
     pub min_cells: usize,
     /// A region of nine cells (a 3 x 3 patch) is reported when its mean change is at least
     /// this many times its cells' mean LoD95; a region of n cells when it is at least this
-    /// times sqrt(9 / n) times it (the mean over more cells is surer). Default 2: a guard
+    /// times sqrt(9 / n) times it (the mean over more cells is surer). Default 2.5: a guard
     /// against chance clusters, since one cell in twenty exceeds its LoD95 by chance and a
-    /// map tests thousands.
+    /// map tests thousands (on seven storm surveys and three unchanged ones, 2 left a false
+    /// region on an unchanged coral's rim and 2.5 none, finding the same corals).
     pub region_lod_factor: f64,
     /// Fewest observations of a point for it to count. Default 3: a point seen in two
     /// images has the least certain depth.
     pub min_track: usize,
 }
 
+/// The defaults for dense surfaces ([`ChangeOptions::sparse`] for the model's points).
 impl Default for ChangeOptions {
     fn default() -> Self {
         Self {
             cell: None,
             radius: None,
+            cell_of_altitude: 0.025,
+            radius_of_altitude: 0.04,
             normal_radius: None,
             max_depth: None,
             min_points: 4,
             min_inner_points: 3,
             max_seen_through: 0.3,
             min_cells: 3,
-            region_lod_factor: 2.0,
+            region_lod_factor: 2.5,
             min_track: 3,
         }
     }
 }
 
 impl ChangeOptions {
+    /// The defaults for sparse surfaces (the model's points): a coarser grid and wider
+    /// cylinders, and no inner points asked of a surface too thin for it.
+    pub fn sparse() -> Self {
+        Self { cell_of_altitude: 0.04, radius_of_altitude: 0.08, min_inner_points: 0, ..Self::default() }
+    }
+
     /// Each option's value, checked (before any work is done), with the option named.
     pub fn check(&self) -> Result<(), ChangeError> {
         let sizes = [
@@ -117,6 +135,16 @@ impl ChangeOptions {
         for (value, option) in sizes {
             if let Some(v) = value.filter(|v| !(v.is_finite() && *v > 0.0)) {
                 return Err(ChangeError::BadOption { option, reason: format!("{v} is not a positive size") });
+            }
+        }
+        for (fraction, name) in
+            [(self.cell_of_altitude, "cell_of_altitude"), (self.radius_of_altitude, "radius_of_altitude")]
+        {
+            if !(fraction.is_finite() && fraction > 0.0) {
+                return Err(ChangeError::BadOption {
+                    option: name,
+                    reason: format!("{fraction} is not a positive fraction"),
+                });
             }
         }
         if !(self.region_lod_factor.is_finite() && self.region_lod_factor >= 0.0) {
@@ -449,8 +477,8 @@ fn resolve_scales(model: &Reconstruction, visits: [&str; 2], options: &ChangeOpt
     let pick = |value: Option<f64>, fraction: f64| value.unwrap_or(fraction * altitude);
     Ok(Scales {
         altitude,
-        cell: pick(options.cell, 0.04),
-        radius: pick(options.radius, 0.08),
+        cell: pick(options.cell, options.cell_of_altitude),
+        radius: pick(options.radius, options.radius_of_altitude),
         normal_radius: pick(options.normal_radius, 0.5),
         max_depth: pick(options.max_depth, 0.5),
     })
@@ -738,7 +766,7 @@ pub(crate) mod testing {
 
     /// The defaults, with every point counted (each is seen by one image here).
     pub fn all_points() -> ChangeOptions {
-        ChangeOptions { min_track: 1, ..ChangeOptions::default() }
+        ChangeOptions { min_track: 1, ..ChangeOptions::sparse() }
     }
 
     /// The map of the model's sparse points.

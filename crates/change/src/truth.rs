@@ -4,14 +4,16 @@ use nalgebra::Point3;
 use revisit_core::Similarity;
 use serde::{Deserialize, Serialize};
 
-use crate::ChangeMap;
+use crate::{ChangeMap, Region};
 
 /// How regions and truth structures are matched, as the scores state it.
-pub const MATCHING_RULE: &str = "a region explains a structure when its centre lies within the structure's reach plus \
-    one cell of where the structure was (removed, moved), is (new, moved) or stands (grown); a region is true when it \
-    explains a structure whose shape or place changed (removed, new, moved or grown; bleaching alone is not; \
-    pebbles, 1-4 cm tall, are below what a map of sparse points measures and explain nothing), false otherwise; the targets are the corals the truth moved or removed whose changed place has a measured cell \
-    within half its reach; a target is found when a region explains it";
+pub const MATCHING_RULE: &str = "a region covers a structure when one of its cells lies within half the structure's \
+    reach (at least one cell) of where the structure was (removed, moved), is (new, moved) or stands (grown); a \
+    region is true when at least half its cells lie within one cell beyond the reach of such places of structures \
+    whose shape or place changed (removed, new, moved or grown; bleaching alone is not; pebbles, 1-4 cm tall, are \
+    below what a map measures and count for nothing), false otherwise; the targets are the corals the truth \
+    moved or removed whose changed place has a measured cell within half its reach; a target is found when a region \
+    covers it";
 
 /// One structure's change between the two visits, as the truth lists it.
 #[derive(Clone, Debug, PartialEq, Deserialize)]
@@ -101,8 +103,10 @@ pub struct RegionTruth {
     pub id: usize,
     /// Its centre in the truth's world, metres.
     pub centre_m: [f64; 2],
-    /// Ids of the changed structures it explains.
-    pub explains: Vec<u32>,
+    /// Ids of the changed structures it covers.
+    pub covers: Vec<u32>,
+    /// Share of its cells within a changed structure's reach plus one cell.
+    pub on_changed: f64,
     /// The structure (not a pebble) whose place, then or now, is nearest: id, change and
     /// distance beyond its reach, metres.
     pub nearest: Option<(u32, String, f64)>,
@@ -115,17 +119,17 @@ pub struct ChangeScores {
     /// The similarity that put the model on the truth (its cameras on the true ones).
     pub truth_from_model: Similarity,
     pub regions: usize,
-    /// Regions explaining a structure whose shape or place changed.
+    /// Regions mostly on structures whose shape or place changed.
     pub true_regions: usize,
     pub precision: Option<f64>,
-    /// Ids of regions explaining nothing that changed.
+    /// Ids of the regions that are not true.
     pub false_regions: Vec<usize>,
     pub by_region: Vec<RegionTruth>,
     /// Corals moved or removed where the map measured.
     pub targets: usize,
     pub found: usize,
     pub recall: Option<f64>,
-    /// Ids of targets no region explains.
+    /// Ids of targets no region covers.
     pub missed: Vec<u32>,
     /// Grown corals measured at their centre.
     pub grown: Vec<GrowthScore>,
@@ -142,15 +146,19 @@ pub fn score(map: &ChangeMap, truth: &[TruthChange], truth_from_model: &Similari
     let cell_m = map.grid.cell * truth_from_model.scale;
     let cells: Vec<[f64; 2]> = map.cells.iter().map(|c| world(&c.core)).collect();
     let near = |a: [f64; 2], b: [f64; 2], r: f64| (a[0] - b[0]).hypot(a[1] - b[1]) <= r;
-    let explains =
-        |centre: [f64; 2], s: &TruthChange| s.changed_at().iter().any(|&p| near(centre, p, s.reach_m + cell_m));
-    let centres: Vec<[f64; 2]> = map.regions.iter().map(|r| world(&r.centre)).collect();
+    let changed: Vec<&TruthChange> = truth.iter().filter(|s| s.is_measurable() && !s.changed_at().is_empty()).collect();
+    let core = |s: &TruthChange| (0.5 * s.reach_m).max(cell_m);
+    let covers = |region: &Region, s: &TruthChange| {
+        region.cells.iter().any(|&k| s.changed_at().iter().any(|&p| near(cells[k], p, core(s))))
+    };
+    let on_changed =
+        |k: usize| changed.iter().any(|s| s.changed_at().iter().any(|&p| near(cells[k], p, s.reach_m + cell_m)));
 
     let by_region: Vec<RegionTruth> = map
         .regions
         .iter()
-        .zip(&centres)
-        .map(|(region, &centre)| {
+        .map(|region| {
+            let centre = world(&region.centre);
             let measurable = || truth.iter().filter(|s| s.is_measurable());
             let places = |s: &TruthChange| s.before_m().into_iter().chain(s.after_m()).collect::<Vec<_>>();
             let beyond = |s: &TruthChange| {
@@ -159,10 +167,12 @@ pub fn score(map: &ChangeMap, truth: &[TruthChange], truth_from_model: &Similari
                     .map(|p| (centre[0] - p[0]).hypot(centre[1] - p[1]) - s.reach_m)
                     .fold(f64::INFINITY, f64::min)
             };
+            let on = region.cells.iter().filter(|&&k| on_changed(k)).count();
             RegionTruth {
                 id: region.id,
                 centre_m: centre,
-                explains: measurable().filter(|s| explains(centre, s)).map(|s| s.id).collect(),
+                covers: changed.iter().filter(|s| covers(region, s)).map(|s| s.id).collect(),
+                on_changed: on as f64 / region.cells.len().max(1) as f64,
                 nearest: measurable()
                     .map(|s| (s, beyond(s)))
                     .min_by(|a, b| a.1.total_cmp(&b.1))
@@ -170,14 +180,14 @@ pub fn score(map: &ChangeMap, truth: &[TruthChange], truth_from_model: &Similari
             }
         })
         .collect();
-    let false_regions: Vec<usize> = by_region.iter().filter(|r| r.explains.is_empty()).map(|r| r.id).collect();
+    let false_regions: Vec<usize> = by_region.iter().filter(|r| r.on_changed < 0.5).map(|r| r.id).collect();
     let measured_at = |p: [f64; 2], r: f64| cells.iter().any(|&c| near(c, p, r));
     let targets: Vec<&TruthChange> = truth
         .iter()
         .filter(|s| s.is_coral() && matches!(s.change.as_str(), "removed" | "moved"))
         .filter(|s| s.changed_at().iter().any(|&p| measured_at(p, 0.5 * s.reach_m)))
         .collect();
-    let missed: Vec<u32> = targets.iter().filter(|s| !centres.iter().any(|&c| explains(c, s))).map(|s| s.id).collect();
+    let missed: Vec<u32> = targets.iter().filter(|s| !map.regions.iter().any(|r| covers(r, s))).map(|s| s.id).collect();
 
     let mut grown = Vec::new();
     for s in truth.iter().filter(|s| s.is_coral() && s.change == "grown" && s.height_change_m > 0.0) {
@@ -238,7 +248,7 @@ id,kind,change,x0,y0,x1,y1,reach_m,moved_m,turned_deg,growth,height_change_m,ble
         assert_eq!((scores.regions, scores.true_regions, scores.precision), (2, 2, Some(1.0)));
         // The removed head is found; the table the truth moved did not move in the model.
         assert_eq!((scores.targets, scores.found, scores.missed.clone()), (2, 1, vec![3]));
-        let mut explained: Vec<Vec<u32>> = scores.by_region.iter().map(|r| r.explains.clone()).collect();
+        let mut explained: Vec<Vec<u32>> = scores.by_region.iter().map(|r| r.covers.clone()).collect();
         explained.sort();
         assert_eq!(explained, [vec![1], vec![2]]);
     }

@@ -35,7 +35,7 @@ enum Command {
     ///
     /// Visit B's surface against visit A's, M3C2-style. Each visit's surface is by default made
     /// densely from its own images at the model's poses (OpenCV's semi-global matching between
-    /// each image and two of its visit's neighbours, kept where both agree; stored in OUT/dense
+    /// each image and up to four of its visit's neighbours, kept where two agree; stored in OUT/dense
     /// and reused while the model stays the same), or with `--surface sparse` taken from the
     /// model's points only that visit observes. On a grid of core points over the site, the
     /// distance from A's surface to B's along A's normal, each with its 95% level of detection
@@ -44,7 +44,7 @@ enum Command {
     /// its median's size plus its robust spread); a cylinder one visit sees only at its rim, or
     /// where the higher visit also saw the lower one's level (through a branching coral), is not
     /// measured. Cells beyond their LoD95 are grouped into raised and lowered regions; a region
-    /// of nine cells is kept when its mean change is at least twice its LoD95 (a smaller one
+    /// of nine cells is kept when its mean change is at least 2.5 times its LoD95 (a smaller one
     /// needs more, a larger one less).
     ///
     /// Writes to OUT: change_A-B.ply (the core points coloured by signed change, with `change`,

@@ -1,18 +1,22 @@
 """Revisit's dense surfaces: each visit's own surface from its images at the model's poses.
 
 Run by revisit-colmap's dense driver from the project's virtual environment (embedded in
-the Rust binary and written next to the output). For every registered image of a visit, the
-two images of the same visit that best see the same ground (viewing axes within 25 degrees,
-baseline 8-80% of the image's depth, nearest 30% first) are each rectified with it (both
-cameras turned to look square to their baseline, distortion undone through the camera model)
-and matched by OpenCV's semi-global block matching, at --scale of the resolution (smoothed
-first). The two depth maps are kept where they agree within --agreement of the depth (two
-independent pairs put a point on a surface there) and where the image shows texture
-(--min-texture: semi-global matching fills a textureless area from its surroundings, and both
-pairs may make the same guess); they are averaged, sampled every --step pixels, and the
-visit's points from all its images averaged in voxels of --voxel of the altitude. Sparse SfM
-points sample texture (sand grains); these sample every surface that shows some, so a smooth
-coral table that a storm removed is in the earlier visit's surface, and sand in the later.
+the Rust binary and written next to the output). For every registered image of a visit, up to
+PARTNERS images of the same visit that best see the same ground (viewing axes within 25
+degrees, baseline 8-80% of the image's depth, nearest 30% first) are each rectified with it
+(both cameras turned to look square to their baseline, distortion undone through the camera
+model) and matched by OpenCV's semi-global block matching, at --scale of the resolution
+(smoothed first). A pixel's depth is kept where at least two of these depth maps agree within
+--agreement of the depth (two independent pairs put a point on a surface there) and where the
+image shows texture (--min-texture: semi-global matching fills a textureless area from its
+surroundings, and two pairs may make the same guess); the agreeing depths are averaged, sampled
+every --step pixels, and the visit's points from all its images averaged in voxels of --voxel
+of the altitude. On a survey flown in lines, an image's two nearest partners are usually the
+one ahead and the one behind, each seeing a different half of it: the third and fourth (the
+next ones along the line, or the neighbouring line's) give the rest of the image a second
+pair. Sparse SfM points sample texture (sand grains); these sample every surface that shows
+some, so a smooth coral table that a storm removed is in the earlier visit's surface, and sand
+in the later.
 
 Writes OUTPUT/<visit>.ply (binary little-endian: double x, y, z in the model's frame, uchar
 red, green, blue) and prints one JSON line: per visit, its images, the images with two
@@ -20,6 +24,7 @@ partners, points and seconds. Logs go to stderr.
 """
 
 import argparse
+import itertools
 import json
 import os
 import sys
@@ -34,6 +39,8 @@ import pycolmap
 MIN_AXIS_COSINE = 0.9
 BASELINE_RANGE = (0.08, 0.8)
 BASELINE_BEST = 0.3
+# Partners an image is matched with: a pixel needs two of them to agree.
+PARTNERS = 4
 # Disparities searched, as fractions of the nominal one (depth 1/1.8 to 1/0.6 of the image's).
 DISPARITY_RANGE = (0.6, 1.8)
 BLOCK = 5
@@ -70,7 +77,7 @@ def partners(rec, image_id, images, depth) -> list:
         ratio = np.linalg.norm(other.projection_center() - centre) / depth
         if BASELINE_RANGE[0] <= ratio <= BASELINE_RANGE[1]:
             scored.append((abs(ratio - BASELINE_BEST), other_id))
-    return [other_id for _, other_id in sorted(scored)[:2]]
+    return [other_id for _, other_id in sorted(scored)[:PARTNERS]]
 
 
 def rectify(rec, image, pixels, canvas, rect_from_world, focal):
@@ -146,11 +153,17 @@ def depth_grid(rec, image, world, step):
 
 
 def fused_points(rec, image, grids, step, agreement):
-    """The image's points where its two pairs' depths agree, in the world frame, with colours."""
-    first, second = grids
-    agree = np.isfinite(first) & np.isfinite(second) & (np.abs(first - second) <= agreement * np.minimum(first, second))
-    rows, cols = np.nonzero(agree)
-    z = (first[rows, cols] + second[rows, cols]) / 2
+    """The image's points where at least two pairs' depths agree, in the world frame, with pixels."""
+    stack = np.stack(grids)
+    finite = np.isfinite(stack)
+    agreeing = np.zeros(stack.shape, bool)
+    with np.errstate(invalid="ignore"):
+        for i, j in itertools.permutations(range(len(grids)), 2):
+            close = np.abs(stack[i] - stack[j]) <= agreement * np.minimum(stack[i], stack[j])
+            agreeing[i] |= finite[i] & finite[j] & close
+    count = agreeing.sum(0)
+    rows, cols = np.nonzero(count >= 2)
+    z = np.where(agreeing, stack, 0.0).sum(0)[rows, cols] / count[rows, cols]
     camera = rec.cameras[image.camera_id]
     uv = np.stack([(cols + 0.5) * step, (rows + 0.5) * step], 1)
     rays = camera.cam_from_img(uv)

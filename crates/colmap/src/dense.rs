@@ -78,7 +78,7 @@ pub struct DenseVisit {
     pub visit: String,
     /// The visit's registered images.
     pub images: usize,
-    /// Those with two partners, whose depths made points.
+    /// Those with at least two partners, whose depths made points.
     pub fused: usize,
     /// Points after averaging in voxels.
     pub points: usize,
@@ -146,7 +146,8 @@ pub fn run_dense(
 pub fn surface_fingerprint(model: &Reconstruction, visit: &str, image_root: &Path, options: &DenseOptions) -> String {
     let mut hash = Fingerprint::default();
     let DenseOptions { step_px, agreement, min_texture, voxel, scale } = *options;
-    hash.str(&image_root.to_string_lossy()).u64(step_px.into());
+    // The method itself: a surface made by an earlier version is made again.
+    hash.str(ENTRY_POINT).str(&image_root.to_string_lossy()).u64(step_px.into());
     for value in [agreement, min_texture, voxel, scale] {
         hash.f64(value);
     }

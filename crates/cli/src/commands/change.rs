@@ -36,10 +36,12 @@ pub struct Args {
     /// on moved and removed corals, and the growth measured on grown ones.
     #[arg(long, value_name = "DIR")]
     truth: Option<PathBuf>,
-    /// Spacing of the core points, model units [default: 4% of the altitude].
+    /// Spacing of the core points, model units [default: 2.5% of the altitude with dense
+    /// surfaces, 4% with sparse ones].
     #[arg(long, value_name = "SIZE")]
     cell: Option<f64>,
-    /// Radius of the measuring cylinder, model units [default: 8% of the altitude].
+    /// Radius of the measuring cylinder, model units [default: 4% of the altitude with dense
+    /// surfaces (under the smallest colonies' reach), 8% with sparse ones].
     #[arg(long, value_name = "SIZE")]
     radius: Option<f64>,
     /// Radius of the neighbourhood a normal is fitted to, model units [default: 50% of the
@@ -71,7 +73,7 @@ pub struct Args {
     /// cells' mean LoD95, one of n cells when it is this times sqrt(9 / n) times it (a guard
     /// against chance clusters: one cell in twenty passes its LoD95 by chance; the mean over
     /// more cells is surer).
-    #[arg(long, default_value_t = 2.0, value_name = "F")]
+    #[arg(long, default_value_t = 2.5, value_name = "F")]
     region_lod_factor: f64,
     /// Fewest images observing a point for it to count, with `--surface sparse` (a point seen
     /// twice has the least certain depth).
@@ -128,20 +130,22 @@ struct Summary<'a> {
 }
 
 pub fn run(args: Args) -> anyhow::Result<()> {
+    let defaults = match args.surface {
+        SurfaceArg::Dense => ChangeOptions::default(),
+        SurfaceArg::Sparse => ChangeOptions::sparse(),
+    };
     let options = ChangeOptions {
         cell: args.cell,
         radius: args.radius,
         normal_radius: args.normal_radius,
         max_depth: args.max_depth,
         min_points: args.min_points,
-        min_inner_points: args.min_inner_points.unwrap_or(match args.surface {
-            SurfaceArg::Dense => ChangeOptions::default().min_inner_points,
-            SurfaceArg::Sparse => 0,
-        }),
+        min_inner_points: args.min_inner_points.unwrap_or(defaults.min_inner_points),
         max_seen_through: args.max_seen_through,
         min_cells: args.min_cells,
         region_lod_factor: args.region_lod_factor,
         min_track: args.min_track,
+        ..defaults
     };
     options.check()?;
     let (path, model, frame) = read_model(&args.model).with_context(|| format!("--model {}", args.model.display()))?;
