@@ -120,7 +120,7 @@ fn unchanged_reef_reconstructs_to_subpixel_cross_visit_error() {
     for (k, visit) in ["s1", "s3"].iter().enumerate() {
         let made = &summary["dense"][k];
         assert_eq!(made["visit"], *visit);
-        assert_eq!(made["fused"], made["images"], "every image paired twice: {made:#}");
+        assert_eq!(made["fused"], made["images"], "every image with at least two partners: {made:#}");
         let ply = std::fs::read(change.join("dense").join(format!("{visit}.ply"))).unwrap();
         let header = String::from_utf8_lossy(&ply[..300]).to_string();
         assert!(header.contains(&format!("element vertex {}\n", made["points"])), "{header}");

@@ -938,6 +938,28 @@ mod tests {
     }
 
     #[test]
+    fn a_small_colony_removed_is_found_on_dense_surfaces() {
+        let model = two_visits(false);
+        // A dome 0.12 m tall with a 0.18 m reach (the smallest colonies of a reef) gone.
+        let dome = |x: f64, y: f64| {
+            let t = (x - 1.0).hypot(y + 1.0) / 0.18;
+            vec![if t < 1.0 { 0.12 * (1.0 - t * t).sqrt() } else { 0.0 }]
+        };
+        let surfaces = Surfaces { from: surface(0.0, dome), to: surface(0.01, |_, _| vec![0.0]), shared: 0 };
+        let regions = |options: &ChangeOptions| detect(&model, "a", "b", &surfaces, options).expect("map").regions;
+        let found = regions(&ChangeOptions::default());
+        assert_eq!(found.len(), 1, "{found:?}");
+        let [x, y] = [found[0].centre.x, found[0].centre.y];
+        assert!((x - 1.0).hypot(y + 1.0) < 0.05, "region at ({x:.2}, {y:.2})");
+        // The sparse defaults' wider cylinders (8% of the altitude, 0.16 m here) reach past it
+        // onto the sand: its measured height falls short of the finer cylinders'.
+        let coarse = regions(&ChangeOptions::sparse());
+        let peak = |regions: &[Region]| regions.iter().map(|r| r.peak_change).fold(0.0, f64::min);
+        assert!((peak(&found) + 0.12).abs() < 0.015, "{found:?}");
+        assert!(peak(&coarse) > peak(&found) + 0.015, "{coarse:?}");
+    }
+
+    #[test]
     fn bad_visits_and_sizes_are_named() {
         let model = two_visits(true);
         let err = sparse_map(&model, "a", "c", &all_points()).unwrap_err();
