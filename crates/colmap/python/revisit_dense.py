@@ -19,7 +19,7 @@ some, so a smooth coral table that a storm removed is in the earlier visit's sur
 in the later.
 
 Writes OUTPUT/<visit>.ply (binary little-endian: double x, y, z in the model's frame, uchar
-red, green, blue) and prints one JSON line: per visit, its images, the images with two
+red, green, blue) and prints one JSON line: per visit, its images, the images with at least two
 partners, points and seconds. Logs go to stderr.
 """
 
