@@ -1,6 +1,6 @@
 //! The synthetic reef end to end: render three visits with no change, reconstruct
 //! them jointly, score the result against the exact truth; two of them again
-//! with one shared, self-calibrated camera.
+//! with one shared, self-calibrated camera; a storm's change mapped between two visits.
 
 mod common;
 
@@ -176,4 +176,36 @@ fn unchanged_reef_reconstructs_to_subpixel_cross_visit_error() {
     assert!(camera_ids.iter().all(|id| *id == camera_ids[0]), "{report:#}");
     let shared_px = common::cross_error_px(&reef, &two, &shared).expect("clicks scored");
     assert!(shared_px < 1.0, "shared camera: median cross-visit error {shared_px} px");
+}
+
+/// A storm moves and removes corals: two visits mapped jointly with their navigation, the
+/// change map between them puts its regions on corals that changed and finds most of the moved
+/// and removed ones it measured (small colonies included: the previous, coarser map found half).
+#[test]
+fn a_storm_change_map_finds_the_corals_it_moved_or_removed() {
+    let dir = tempfile::tempdir().unwrap();
+    let (reef, work, change) = (dir.path().join("reef"), dir.path().join("work"), dir.path().join("change"));
+    let reef_s = reef.to_str().unwrap();
+    let synth = ["synth", "--out", reef_s, "--sessions", "2", "--images-per-session", "16", "--change", "storm"];
+    run_ok(&[&synth[..], &["--seed", "5"]].concat());
+    let nav: Vec<String> =
+        ["s1", "s2"].iter().flat_map(|s| ["--nav".into(), format!("{s}={reef_s}/nav/{s}.csv")]).collect();
+    let nav: Vec<&str> = nav.iter().map(String::as_str).collect();
+    let report = common::reconstruct(&reef, &["s1", "s2"], &work, &[&["--change-aware"], &nav[..]].concat());
+    assert_eq!(report["models"], 1, "{report:#}");
+
+    let truth_s = reef.join("truth").display().to_string();
+    let (work_s, change_s) = (work.to_str().unwrap(), change.to_str().unwrap());
+    run_ok(&["change", "--model", work_s, "--from", "s1", "--to", "s2", "--out", change_s, "--truth", &truth_s]);
+    let scores = &read_json(&change.join("change_s1-s2.json"))["truth"];
+    println!("storm change map: {scores:#}");
+    let count = |key: &str| scores[key].as_u64().unwrap();
+    assert!(count("targets") >= 8, "{scores:#}");
+    assert_eq!(count("true_regions"), count("regions"), "false regions: {scores:#}");
+    assert!(
+        10 * count("found") >= 6 * count("targets"),
+        "{} of {} found: {scores:#}",
+        count("found"),
+        count("targets")
+    );
 }
