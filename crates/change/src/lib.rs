@@ -793,6 +793,11 @@ pub(crate) mod testing {
     /// Two visits of a 4 m x 4 m site from 2 m up, each point seen by the one camera above it,
     /// heights with 1 cm of noise (seeded). `change` false: both visits see the flat seabed.
     pub fn two_visits(change: bool) -> Reconstruction {
+        two_visits_of(if change { seabed } else { |_, _, _| 0.0 })
+    }
+
+    /// [`two_visits`] of the seabed `height(visit, x, y)`.
+    pub fn two_visits_of(height: fn(&str, f64, f64) -> f64) -> Reconstruction {
         let mut model = Reconstruction::default();
         let mut state = 7u64;
         let mut noise = move || {
@@ -813,7 +818,7 @@ pub(crate) mod testing {
             for i in 0..80 {
                 for j in 0..80 {
                     let (x, y) = (-2.0 + 0.05 * i as f64 + offset, -2.0 + 0.05 * j as f64 + offset);
-                    let z = if change { seabed(visit, x, y) } else { 0.0 } + noise();
+                    let z = height(visit, x, y) + noise();
                     let image_id = (v * 4 + usize::from(x > 0.0) + 2 * usize::from(y > 0.0) + 1) as u32;
                     let id = model.points3d.len() as u64 + 1;
                     let image = model.images.get_mut(&image_id).expect("image");

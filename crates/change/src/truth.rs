@@ -89,11 +89,14 @@ pub fn parse_changes_csv(text: &str, source_name: &str) -> Result<Vec<TruthChang
 pub struct GrowthScore {
     pub id: u32,
     pub truth_m: f64,
-    /// The largest change among the cells within half its reach of its centre, metres.
+    /// The median change of the cells on its top (within a quarter of its reach of its centre,
+    /// at least one cell), metres: the largest change stands on a flank (a grown dome's flank
+    /// moves out and so rises more than its top), and the median over half the reach mixes the
+    /// flanks in.
     pub measured_m: f64,
     /// `measured_m / truth_m - 1`.
     pub relative_error: f64,
-    /// The truth's change exceeds the cells' level of detection there.
+    /// The truth's change exceeds the median LoD95 of those cells.
     pub detectable: bool,
 }
 
@@ -131,7 +134,8 @@ pub struct ChangeScores {
     pub recall: Option<f64>,
     /// Ids of targets no region covers.
     pub missed: Vec<u32>,
-    /// Grown corals measured at their centre.
+    /// Grown corals measured on their top; those under or over a structure that was removed,
+    /// moved or new are left out (their change is the other's).
     pub grown: Vec<GrowthScore>,
     /// Median |relative error| over the detectable grown corals.
     pub growth_median_abs_error: Option<f64>,
@@ -189,19 +193,36 @@ pub fn score(map: &ChangeMap, truth: &[TruthChange], truth_from_model: &Similari
         .collect();
     let missed: Vec<u32> = targets.iter().filter(|s| !map.regions.iter().any(|r| covers(r, s))).map(|s| s.id).collect();
 
+    // A grown coral under or over one that left, came or moved (one stands within the other's
+    // reach) is measured with it, not alone.
+    let under_other = |s: &TruthChange, at: [f64; 2]| {
+        changed.iter().any(|o| {
+            o.id != s.id && o.change != "grown" && o.changed_at().iter().any(|&p| near(at, p, s.reach_m.max(o.reach_m)))
+        })
+    };
     let mut grown = Vec::new();
     for s in truth.iter().filter(|s| s.is_coral() && s.change == "grown" && s.height_change_m > 0.0) {
-        let Some(centre) = s.after_m() else { continue };
-        let here: Vec<&crate::Cell> =
-            map.cells.iter().zip(&cells).filter(|(_, &c)| near(c, centre, 0.5 * s.reach_m)).map(|(c, _)| c).collect();
-        let Some(peak) = here.iter().max_by(|a, b| a.change.total_cmp(&b.change)) else { continue };
-        let measured_m = peak.change * truth_from_model.scale;
+        let Some(centre) = s.after_m().filter(|&at| !under_other(s, at)) else { continue };
+        let top: Vec<&crate::Cell> = map
+            .cells
+            .iter()
+            .zip(&cells)
+            .filter(|(_, &c)| near(c, centre, (0.25 * s.reach_m).max(cell_m)))
+            .map(|(c, _)| c)
+            .collect();
+        if top.is_empty() {
+            continue;
+        }
+        let median_of = |value: fn(&crate::Cell) -> f64| {
+            crate::median(&top.iter().map(|&c| value(c)).collect::<Vec<_>>()) * truth_from_model.scale
+        };
+        let measured_m = median_of(|c| c.change);
         grown.push(GrowthScore {
             id: s.id,
             truth_m: s.height_change_m,
             measured_m,
             relative_error: measured_m / s.height_change_m - 1.0,
-            detectable: s.height_change_m > peak.lod95 * truth_from_model.scale,
+            detectable: s.height_change_m > median_of(|c| c.lod95),
         });
     }
     let mut errors: Vec<f64> = grown.iter().filter(|g| g.detectable).map(|g| g.relative_error.abs()).collect();
@@ -251,6 +272,31 @@ id,kind,change,x0,y0,x1,y1,reach_m,moved_m,turned_deg,growth,height_change_m,ble
         let mut explained: Vec<Vec<u32>> = scores.by_region.iter().map(|r| r.covers.clone()).collect();
         explained.sort();
         assert_eq!(explained, [vec![1], vec![2]]);
+    }
+
+    #[test]
+    fn a_grown_coral_is_measured_on_its_top_not_its_flank() {
+        // A dome 0.4 m across the foot and 0.3 m tall that grew by a quarter: its top rose
+        // 7.5 cm, its flanks more (they moved out as well).
+        fn grown_dome(visit: &str, x: f64, y: f64) -> f64 {
+            let size = if visit == "b" { 1.25 } else { 1.0 };
+            let t = (x - 1.0).hypot(y + 1.0) / (0.4 * size);
+            0.3 * size * (1.0 - t * t).max(0.0)
+        }
+        let truth = parse_changes_csv(
+            "id,kind,change,x0,y0,x1,y1,reach_m,moved_m,turned_deg,growth,height_change_m,bleach_change\n\
+             1,coral_head,grown,1,-1,1,-1,0.5,0,0,0.25,0.075,0\n",
+            "changes_a-b.csv",
+        )
+        .expect("csv");
+        let map = crate::testing::sparse_map(&crate::testing::two_visits_of(grown_dome), "a", "b", &all_points())
+            .expect("map");
+        let scores = score(&map, &truth, &Similarity::identity());
+        let [grown] = &scores.grown[..] else { panic!("{:?}", scores.grown) };
+        assert!(grown.detectable, "{grown:?}");
+        assert!(grown.relative_error.abs() < 0.2, "{grown:?}");
+        let flank = map.cells.iter().map(|c| c.change).fold(f64::MIN, f64::max);
+        assert!(flank > 1.5 * grown.truth_m, "the flank rose {flank} m");
     }
 
     #[test]
