@@ -28,6 +28,10 @@ pub struct TruthChange {
     pub reach_m: f64,
     pub growth: f64,
     pub height_change_m: f64,
+    /// Change of the median height of its top (`revisit synth` writes it since growth is
+    /// scored there; older truths lack it, and their height change is used).
+    #[serde(default)]
+    top_change_m: Option<f64>,
 }
 
 impl TruthChange {
@@ -84,10 +88,11 @@ pub fn parse_changes_csv(text: &str, source_name: &str) -> Result<Vec<TruthChang
         .collect()
 }
 
-/// A grown coral: its true change of height against the map's.
+/// A grown coral: the true change of its top's height against the map's.
 #[derive(Clone, Debug, PartialEq, Serialize)]
 pub struct GrowthScore {
     pub id: u32,
+    /// The truth's change of the median height of its top (within a quarter of its reach).
     pub truth_m: f64,
     /// The median change of the cells on its top (within a quarter of its reach of its centre,
     /// at least one cell), metres: the largest change stands on a flank (a grown dome's flank
@@ -216,13 +221,13 @@ pub fn score(map: &ChangeMap, truth: &[TruthChange], truth_from_model: &Similari
         let median_of = |value: fn(&crate::Cell) -> f64| {
             crate::median(&top.iter().map(|&c| value(c)).collect::<Vec<_>>()) * truth_from_model.scale
         };
-        let measured_m = median_of(|c| c.change);
+        let (measured_m, truth_m) = (median_of(|c| c.change), s.top_change_m.unwrap_or(s.height_change_m));
         grown.push(GrowthScore {
             id: s.id,
-            truth_m: s.height_change_m,
+            truth_m,
             measured_m,
-            relative_error: measured_m / s.height_change_m - 1.0,
-            detectable: s.height_change_m > median_of(|c| c.lod95),
+            relative_error: measured_m / truth_m - 1.0,
+            detectable: truth_m > median_of(|c| c.lod95),
         });
     }
     let mut errors: Vec<f64> = grown.iter().filter(|g| g.detectable).map(|g| g.relative_error.abs()).collect();

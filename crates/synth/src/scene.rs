@@ -89,6 +89,25 @@ impl ObjectState {
     pub fn reach_m(&self) -> f64 {
         self.radius_m * self.growth * (1.0 + 1.6 * f64::from(self.kind.outline_noise())) + 0.01
     }
+
+    /// Median height of its surface above its base over a disc of `radius_m` about `centre_m`
+    /// (sampled every centimetre; its outline's inside only), metres: the top a surface map
+    /// measures. For a branching coral that is the canopy, between its tips and its gaps.
+    pub fn median_height_over_m(&self, centre_m: [f64; 2], radius_m: f64) -> Option<f64> {
+        let painter = Painter::new(self);
+        let steps = (radius_m / 0.01).ceil() as i32;
+        let mut heights: Vec<f32> = (-steps..=steps)
+            .flat_map(|i| (-steps..=steps).map(move |j| (0.01 * f64::from(i), 0.01 * f64::from(j))))
+            .filter(|(dx, dy)| dx.hypot(*dy) <= radius_m)
+            .filter_map(|(dx, dy)| painter.height_at((centre_m[0] + dx) as f32, (centre_m[1] + dy) as f32))
+            .collect();
+        if heights.is_empty() {
+            return None;
+        }
+        let mid = heights.len() / 2;
+        let median = *heights.select_nth_unstable_by(mid, f32::total_cmp).1;
+        Some(f64::from(median) - self.base_m)
+    }
 }
 
 /// A precomputed, f32 view of an object for the inner loops.
@@ -1032,4 +1051,39 @@ fn grid_normals(heights: &[f32], n: usize, parallel: bool) -> Vec<[f32; 3]> {
         }
     });
     normals
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn state(kind: ObjectKind, growth: f64) -> ObjectState {
+        ObjectState {
+            id: 1,
+            kind,
+            centre_m: [0.0, 0.0],
+            radius_m: 0.3,
+            height_m: 0.25,
+            angle_rad: 0.0,
+            growth,
+            bleach: 0.0,
+            base_m: -0.05,
+            colour: [0.5; 3],
+            seed: 11,
+        }
+    }
+
+    #[test]
+    fn a_branching_corals_canopy_stands_below_its_tips_and_grows_with_it() {
+        let top = |kind, growth| state(kind, growth).median_height_over_m([0.0, 0.0], 0.08).expect("inside");
+        let head = top(ObjectKind::CoralHead, 1.0);
+        assert!(head > 0.9 * 0.25 && head <= 0.25 * 1.07, "head top {head}");
+        let canopy = top(ObjectKind::BranchingCoral, 1.0);
+        assert!(canopy > 0.5 * 0.25 && canopy < 0.9 * 0.25, "canopy {canopy}");
+        // Grown by a fifth: the canopy rises by about a fifth of its own height, less than
+        // the tips' 5 cm.
+        let rise = top(ObjectKind::BranchingCoral, 1.2) - canopy;
+        assert!(rise > 0.15 * canopy && rise < 0.25 * canopy && rise < 0.05, "rise {rise}");
+        assert_eq!(state(ObjectKind::CoralHead, 1.0).median_height_over_m([2.0, 2.0], 0.1), None);
+    }
 }

@@ -60,6 +60,10 @@ pub struct StructureChange {
     pub growth: f64,
     /// Change of the height of its top above its base, metres.
     pub height_change_m: f64,
+    /// Change of the median height of its surface within a quarter of its reach of its centre
+    /// (in B), metres: what a surface map measures on its top (for a branching coral, the
+    /// canopy rises less than its tips).
+    pub top_change_m: f64,
     /// Change of bleaching (0 healthy, 1 white).
     pub bleach_change: f64,
 }
@@ -79,6 +83,7 @@ impl StructureChange {
             turned_deg: 0.0,
             growth: 0.0,
             height_change_m: 0.0,
+            top_change_m: 0.0,
             bleach_change: 0.0,
         };
         let (Some(a), Some(b)) = (before, after) else {
@@ -89,6 +94,10 @@ impl StructureChange {
         change.turned_deg = (b.angle_rad - a.angle_rad).to_degrees();
         change.growth = b.growth / a.growth - 1.0;
         change.height_change_m = b.height_m * b.growth - a.height_m * a.growth;
+        let top = |state: &ObjectState| state.median_height_over_m(b.centre_m, 0.25 * reach_m);
+        if let (Some(top_a), Some(top_b)) = (top(a), top(b)) {
+            change.top_change_m = top_b - top_a;
+        }
         change.bleach_change = b.bleach - a.bleach;
         change.change = if change.moved_m > 0.0 || change.turned_deg != 0.0 {
             ChangeKind::Moved

@@ -413,6 +413,7 @@ fn changes_csv(changes: &[StructureChange]) -> anyhow::Result<String> {
             num(c.growth),
             num(c.height_change_m),
             num(c.bleach_change),
+            num(c.top_change_m),
         ]
     });
     let header = [
@@ -429,6 +430,7 @@ fn changes_csv(changes: &[StructureChange]) -> anyhow::Result<String> {
         "growth",
         "height_change_m",
         "bleach_change",
+        "top_change_m",
     ];
     csv_text(header, rows)
 }
@@ -528,8 +530,10 @@ changes_A-B.csv
     coral may also have grown); x0,y0 and x1,y1 its centre in A and in B
     (empty when absent), reach_m its largest horizontal reach from the centre,
     moved_m, turned_deg, growth (B's size over A's, minus 1; radial and
-    vertical), height_change_m (of its top above its base) and bleach_change
-    (0 healthy, 1 white). Evaluation points never fall on changed structures.
+    vertical), height_change_m (of its top above its base), bleach_change
+    (0 healthy, 1 white) and top_change_m (of the median height of its surface
+    within a quarter of its reach of its centre: the top a surface map
+    measures; a branching coral's canopy rises less than its tips). Evaluation points never fall on changed structures.
 evaluation_points_A-B.csv
     The published evaluation format for sessions A and B:
     img0,img1,uv_clicked,uv_groundtruth, each of the two last cells a JSON
