@@ -60,9 +60,9 @@ pub struct StructureChange {
     pub growth: f64,
     /// Change of the height of its top above its base, metres.
     pub height_change_m: f64,
-    /// Change of the median height of its surface within a quarter of its reach of its centre
-    /// (in B), metres: what a surface map measures on its top (for a branching coral, the
-    /// canopy rises less than its tips).
+    /// For a grown structure (0 otherwise), the change of the median height of its surface
+    /// within a quarter of its reach of its centre, metres: what a surface map measures on its
+    /// top (a branching coral's canopy rises less than its tips).
     pub top_change_m: f64,
     /// Change of bleaching (0 healthy, 1 white).
     pub bleach_change: f64,
@@ -94,10 +94,6 @@ impl StructureChange {
         change.turned_deg = (b.angle_rad - a.angle_rad).to_degrees();
         change.growth = b.growth / a.growth - 1.0;
         change.height_change_m = b.height_m * b.growth - a.height_m * a.growth;
-        let top = |state: &ObjectState| state.median_height_over_m(b.centre_m, 0.25 * reach_m);
-        if let (Some(top_a), Some(top_b)) = (top(a), top(b)) {
-            change.top_change_m = top_b - top_a;
-        }
         change.bleach_change = b.bleach - a.bleach;
         change.change = if change.moved_m > 0.0 || change.turned_deg != 0.0 {
             ChangeKind::Moved
@@ -108,6 +104,12 @@ impl StructureChange {
         } else {
             ChangeKind::Unchanged
         };
+        if change.change == ChangeKind::Grown {
+            let top = |state: &ObjectState| state.median_height_over_m(b.centre_m, 0.25 * reach_m);
+            if let (Some(top_a), Some(top_b)) = (top(a), top(b)) {
+                change.top_change_m = top_b - top_a;
+            }
+        }
         Some(change)
     }
 }

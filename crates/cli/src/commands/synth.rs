@@ -531,9 +531,10 @@ changes_A-B.csv
     (empty when absent), reach_m its largest horizontal reach from the centre,
     moved_m, turned_deg, growth (B's size over A's, minus 1; radial and
     vertical), height_change_m (of its top above its base), bleach_change
-    (0 healthy, 1 white) and top_change_m (of the median height of its surface
-    within a quarter of its reach of its centre: the top a surface map
-    measures; a branching coral's canopy rises less than its tips). Evaluation points never fall on changed structures.
+    (0 healthy, 1 white) and top_change_m (grown structures: of the median
+    height of its surface within a quarter of its reach of its centre, the top
+    a surface map measures; a branching coral's canopy rises less than its
+    tips). Evaluation points never fall on changed structures.
 evaluation_points_A-B.csv
     The published evaluation format for sessions A and B:
     img0,img1,uv_clicked,uv_groundtruth, each of the two last cells a JSON
