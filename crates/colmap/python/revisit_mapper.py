@@ -23,6 +23,13 @@ from revisit_change_aware import adjustment, map_jointly, umeyama, visit_of_name
 
 # The smallest standard deviation a de-biased navigation prior is given, metres.
 MIN_DRIFT_SIGMA_M = 0.01
+# COLMAP adjusts the whole model again each time it has grown by this factor (in images and in
+# points; its default 1.1), and once more at the end. On the 110 subvo frames (one thread) 1.25
+# maps in 96 s instead of 134 s with every image registered, the same mean reprojection error
+# (0.418 px) and camera centres within 0.04% of the track's radius of the default's; at 1.4
+# (82 s) they move by 0.5%. The number of global adjustments grows with the log of the
+# survey's size, so the saving holds at any size.
+GLOBAL_BA_GROWTH = 1.25
 
 
 def exit_with_parent() -> None:
@@ -202,6 +209,8 @@ def main() -> int:
         options.mapper.random_seed = args.seed
         options.mapper.num_threads = args.threads
         options.mapper.abs_pose_min_num_inliers = args.min_pose_inliers
+        options.ba_global_frames_ratio = GLOBAL_BA_GROWTH
+        options.ba_global_points_ratio = GLOBAL_BA_GROWTH
         options.constant_cameras = constant
         options.mapper.constant_cameras = constant
         if constant and constant >= all_cameras(args.database):
