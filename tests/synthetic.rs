@@ -1,6 +1,7 @@
 //! The synthetic reef end to end: render three visits with no change, reconstruct
 //! them jointly, score the result against the exact truth; two of them again
-//! with one shared, self-calibrated camera; a storm's change mapped between two visits.
+//! with one shared, self-calibrated camera; a storm's change mapped between two visits; two
+//! visits a year of coral growth apart mapped change-aware.
 
 mod common;
 
@@ -208,4 +209,32 @@ fn a_storm_change_map_finds_the_corals_it_moved_or_removed() {
         count("found"),
         count("targets")
     );
+}
+
+/// A year of coral growth between two visits (strong change: the sand renewed, so most
+/// cross-visit matches fall on corals that grew): the plain joint solve bends one visit onto the
+/// grown corals, change-aware mapping with the visits' navigation places the second visit by the
+/// structure that held and keeps both visits in one model, several times nearer the truth (3.9
+/// px against 9.7 px; 15 px when a grown coral's many matches outvoted the rest).
+#[test]
+fn change_aware_mapping_holds_through_a_year_of_growth() {
+    let dir = tempfile::tempdir().unwrap();
+    let (reef, work) = (dir.path().join("reef"), dir.path().join("work"));
+    let reef_s = reef.to_str().unwrap();
+    let synth = ["synth", "--out", reef_s, "--sessions", "2", "--images-per-session", "10", "--change", "strong"];
+    run_ok(&[&synth[..], &["--seed", "3", "--growth", "yearly"]].concat());
+    let nav: Vec<String> =
+        ["s1", "s2"].iter().flat_map(|s| ["--nav".into(), format!("{s}={reef_s}/nav/{s}.csv")]).collect();
+    let nav: Vec<&str> = nav.iter().map(String::as_str).collect();
+    common::reconstruct(&reef, &["s1", "s2"], &work, &nav);
+    let plain_px = common::cross_error_px(&reef, &["s1", "s2"], &work).expect("clicks scored");
+
+    let report = common::reconstruct(&reef, &["s1", "s2"], &work, &[&["--change-aware"], &nav[..]].concat());
+    assert_eq!(report["features"]["done"], 0, "only mapping runs again: {report:#}");
+    assert_eq!(report["models"], 1, "{report:#}");
+    assert_eq!(common::fully_registered(&report), ["s1", "s2"], "{report:#}");
+    let change_aware_px = common::cross_error_px(&reef, &["s1", "s2"], &work).expect("clicks scored");
+    println!("a year of growth: change-aware {change_aware_px:.2} px, plain {plain_px:.2} px");
+    assert!(change_aware_px < 6.0, "change-aware: median cross-visit error {change_aware_px} px");
+    assert!(2.0 * change_aware_px < plain_px, "change-aware {change_aware_px} px against plain {plain_px} px");
 }
