@@ -117,10 +117,7 @@ fn strong_change_links_with_place_recognition_and_roll_search() {
     // pairs, with the loops they close with each other or, given the visits' navigation, with
     // where it puts the cameras are wrong ones (none of them right by the truth);
     // asked to, it maps without them (nothing else is redone).
-    let nav: Vec<String> = three
-        .iter()
-        .flat_map(|s| ["--nav".into(), format!("{s}={}", reef.join(format!("nav/{s}.csv")).display())])
-        .collect();
+    let nav = common::nav_args(&reef, &three);
     let nav: Vec<&str> = nav.iter().map(String::as_str).collect();
     let report = reconstruct(&reef, &three, &vpr, &[&["--set-aside-inconsistent"], &nav[..]].concat());
     let consistency = &report["cross"]["consistency"];

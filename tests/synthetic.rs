@@ -189,8 +189,7 @@ fn a_storm_change_map_finds_the_corals_it_moved_or_removed() {
     let reef_s = reef.to_str().unwrap();
     let synth = ["synth", "--out", reef_s, "--sessions", "2", "--images-per-session", "16", "--change", "storm"];
     run_ok(&[&synth[..], &["--seed", "5"]].concat());
-    let nav: Vec<String> =
-        ["s1", "s2"].iter().flat_map(|s| ["--nav".into(), format!("{s}={reef_s}/nav/{s}.csv")]).collect();
+    let nav = common::nav_args(&reef, &["s1", "s2"]);
     let nav: Vec<&str> = nav.iter().map(String::as_str).collect();
     let report = common::reconstruct(&reef, &["s1", "s2"], &work, &[&["--change-aware"], &nav[..]].concat());
     assert_eq!(report["models"], 1, "{report:#}");
@@ -223,8 +222,7 @@ fn change_aware_mapping_holds_through_a_year_of_growth() {
     let reef_s = reef.to_str().unwrap();
     let synth = ["synth", "--out", reef_s, "--sessions", "2", "--images-per-session", "10", "--change", "strong"];
     run_ok(&[&synth[..], &["--seed", "3", "--growth", "yearly"]].concat());
-    let nav: Vec<String> =
-        ["s1", "s2"].iter().flat_map(|s| ["--nav".into(), format!("{s}={reef_s}/nav/{s}.csv")]).collect();
+    let nav = common::nav_args(&reef, &["s1", "s2"]);
     let nav: Vec<&str> = nav.iter().map(String::as_str).collect();
     common::reconstruct(&reef, &["s1", "s2"], &work, &nav);
     let plain_px = common::cross_error_px(&reef, &["s1", "s2"], &work).expect("clicks scored");

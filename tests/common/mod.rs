@@ -101,6 +101,14 @@ pub fn reconstruct_uncalibrated(reef: &Path, sessions: &[&str], work: &Path, ext
     read_json(&work.join("report.json"))
 }
 
+/// `--nav NAME=CSV` for each of `sessions`, from the navigation `revisit synth` wrote for the reef.
+pub fn nav_args(reef: &Path, sessions: &[&str]) -> Vec<String> {
+    sessions
+        .iter()
+        .flat_map(|s| ["--nav".into(), format!("{s}={}", reef.join(format!("nav/{s}.csv")).display())])
+        .collect()
+}
+
 /// Median cross-session reprojection error (px) of `work`'s chosen model
 /// over the truth's clicks between `sessions`, or None if nothing scored.
 pub fn cross_error_px(reef: &Path, sessions: &[&str], work: &Path) -> Option<f64> {

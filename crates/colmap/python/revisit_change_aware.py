@@ -267,8 +267,9 @@ class PairMatches:
         if not agree.any():
             return 0
         s, r, t = b_to_a
-        where = np.where(self.known_a[:, None], self.points_a, s * np.nan_to_num(self.points_b) @ r.T + t)
-        _, counts = np.unique(cell_keys(where[agree], self.cell), return_counts=True)
+        known_a = self.known_a[agree, None]
+        where = np.where(known_a, self.points_a[agree], s * np.nan_to_num(self.points_b[agree]) @ r.T + t)
+        _, counts = np.unique(cell_keys(where, self.cell), return_counts=True)
         return int(np.minimum(counts, SUPPORT_PER_CELL).sum())
 
 
