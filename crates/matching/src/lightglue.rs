@@ -1,8 +1,8 @@
 //! LightGlue-family matchers on ONNX Runtime (LightGlue for ALIKED,
 //! LighterGlue for XFeat). The model returns a log-assignment matrix with a
 //! dustbin row and column; a pair (i, j) matches when j is the best of row i,
-//! i the best of column j (dustbins excluded) and exp(score) exceeds the
-//! threshold. Non-finite scores never match.
+//! i the best of column j (dustbins excluded) and exp(score), the match's
+//! probability, exceeds the caller's minimum. Non-finite scores never match.
 
 use std::path::Path;
 
@@ -32,15 +32,15 @@ const fn contract(inputs: &'static [InputSpec]) -> Contract {
     Contract { inputs, outputs: &[OutputSpec { name: "scores", shape: &[Some(1), None, None] }] }
 }
 
-/// Default minimum match probability.
-pub const DEFAULT_MATCH_THRESHOLD: f32 = 0.1;
+/// LightGlue's own minimum match probability (its `filter_threshold`), as its
+/// reference matches are counted; cross-visit matching asks for more
+/// (`CrossOptions::min_match_probability`).
+pub const LIGHTGLUE_MATCH_THRESHOLD: f32 = 0.1;
 
 /// An opened LightGlue-family model for descriptors of `descriptor_dim`.
 pub struct LightGlue {
     model: Model,
     descriptor_dim: usize,
-    /// Minimum exp(score) of a match.
-    pub threshold: f32,
     runs: usize,
 }
 
@@ -58,12 +58,7 @@ impl LightGlue {
                 })
             }
         };
-        Ok(LightGlue {
-            model: Model::open(runtime, path, contract)?,
-            descriptor_dim,
-            threshold: DEFAULT_MATCH_THRESHOLD,
-            runs: 0,
-        })
+        Ok(LightGlue { model: Model::open(runtime, path, contract)?, descriptor_dim, runs: 0 })
     }
 
     /// How many times the network has run since the matcher was opened (a pair matched at
@@ -112,13 +107,18 @@ impl LightGlue {
         Ok(scores.into_iter().collect())
     }
 
-    /// Mutual best matches `[index in a, index in b]` above the threshold.
-    pub fn match_features(&mut self, a: &LearnedFeatures, b: &LearnedFeatures) -> Result<Vec<[u32; 2]>, OnnxError> {
+    /// Mutual best matches `[index in a, index in b]` more probable than `min_probability`.
+    pub fn match_features(
+        &mut self,
+        a: &LearnedFeatures,
+        b: &LearnedFeatures,
+        min_probability: f32,
+    ) -> Result<Vec<[u32; 2]>, OnnxError> {
         if a.is_empty() || b.is_empty() {
             return Ok(Vec::new());
         }
         let scores = self.scores(a, b)?;
-        Ok(mutual_matches(&scores, a.len(), b.len(), self.threshold))
+        Ok(mutual_matches(&scores, a.len(), b.len(), min_probability))
     }
 }
 

@@ -21,6 +21,7 @@ use revisit_onnx::OnnxError;
 use serde::{Deserialize, Serialize};
 
 use crate::consistency::UNLINKED_MIN_INLIERS;
+use crate::cross::CrossOptions;
 use crate::lightglue::LightGlue;
 use crate::verify::{verify, VerifyOptions};
 use crate::{check_range, OptionsError};
@@ -189,19 +190,20 @@ pub fn unrolled_keypoints(features: &LearnedFeatures, roll: Roll) -> Vec<Keypoin
 /// probe falls back to the full search when no roll wins it by `roll_margin`;
 /// [`RollSearch::Predict`] (a pair without a prediction) searches from
 /// `place_roll` (place recognition's: the query roll whose descriptor was
-/// nearest), then the others, and stops at a roll that [`wins_clearly`].
+/// nearest), then the others, and stops at a roll that [`wins_clearly`]
+/// (by `options.roll_margin`). Matches are `options`' most probable
+/// ([`CrossOptions::min_match_probability`]) and verified by `options.verify`.
 pub fn match_with_rolls(
     matcher: &mut LightGlue,
     a: &LearnedFeatures,
     b_by_roll: &[(Roll, LearnedFeatures)],
-    search: RollSearch,
-    place_roll: Option<Roll>,
-    roll_margin: f32,
-    verify_options: &VerifyOptions,
+    (search, place_roll): (RollSearch, Option<Roll>),
+    options: &CrossOptions,
 ) -> Result<CrossMatch, OnnxError> {
+    let (roll_margin, verify_options) = (options.roll_margin, &options.verify);
     let a_keypoints = unrolled_keypoints(a, Roll::R0);
     let full = |matcher: &mut LightGlue, roll: Roll, b: &LearnedFeatures| -> Result<CrossMatch, OnnxError> {
-        let matches = matcher.match_features(a, b)?;
+        let matches = matcher.match_features(a, b, options.min_match_probability)?;
         let geometry = verify(&a_keypoints, &unrolled_keypoints(b, roll), &matches, verify_options);
         let inliers = geometry.inlier_matches.len();
         Ok(CrossMatch {
@@ -270,7 +272,7 @@ pub fn match_with_rolls(
             let mut best: Option<(usize, usize, &LearnedFeatures)> = None;
             for (roll, b) in &candidates {
                 let b_probe = b.strongest(budget);
-                let matches = matcher.match_features(&a_probe, &b_probe)?;
+                let matches = matcher.match_features(&a_probe, &b_probe, options.min_match_probability)?;
                 let geometry =
                     verify(&a_probe_keypoints, &unrolled_keypoints(&b_probe, *roll), &matches, &probe_verify);
                 let inliers = geometry.inlier_matches.len();
@@ -304,7 +306,7 @@ pub fn match_at_prediction(
     a: &LearnedFeatures,
     b_by_roll: &[(Roll, LearnedFeatures)],
     prediction: &Prediction,
-    verify_options: &VerifyOptions,
+    options: &CrossOptions,
 ) -> Result<CrossMatch, OnnxError> {
     let rolls = prediction.rolls();
     let a_keypoints = unrolled_keypoints(a, Roll::R0);
@@ -312,8 +314,8 @@ pub fn match_at_prediction(
     for &roll in &rolls {
         let Some((_, b)) = b_by_roll.iter().find(|(r, _)| *r == roll) else { continue };
         let b_keypoints = unrolled_keypoints(b, roll);
-        let matches = matcher.match_features(a, b)?;
-        let geometry = verify(&a_keypoints, &b_keypoints, &matches, verify_options);
+        let matches = matcher.match_features(a, b, options.min_match_probability)?;
+        let geometry = verify(&a_keypoints, &b_keypoints, &matches, &options.verify);
         tried.push((roll, geometry.inlier_matches.len()));
         let at = |keypoints: &[Keypoint], side: usize| -> Vec<[f64; 2]> {
             let point = |k: &Keypoint| [f64::from(k.x), f64::from(k.y)];

@@ -6,9 +6,8 @@
 use ndarray::ArrayD;
 use ndarray_npy::NpzReader;
 use revisit_core::{LearnedFeatures, Roll};
-use revisit_matching::lightglue::mutual_matches;
-use revisit_matching::roll::DEFAULT_ROLL_MARGIN;
-use revisit_matching::{LightGlue, RollSearch, VerifyOptions};
+use revisit_matching::lightglue::{mutual_matches, LIGHTGLUE_MATCH_THRESHOLD};
+use revisit_matching::{CrossOptions, LightGlue, RollSearch, VerifyOptions};
 use revisit_onnx::Runtime;
 use revisit_testkit::shared;
 
@@ -84,10 +83,14 @@ fn lighterglue_xfeat_reproduces_the_reference_scores() {
 fn the_real_pair_gives_the_reference_matches() {
     let r = reference("lightglue_aliked_realpair_ref.npz", ["kpts0", "kpts1", "desc0", "desc1", "size0", "size1"]);
     let reference: Vec<f32> = r.scores.iter().copied().collect();
-    let expected = mutual_matches(&reference, r.a.len(), r.b.len(), 0.1);
+    let expected = mutual_matches(&reference, r.a.len(), r.b.len(), LIGHTGLUE_MATCH_THRESHOLD);
     assert_eq!(expected.len(), 263, "PROVENANCE.md's count");
     let mut matcher = LightGlue::open(&runtime(), &shared("models/lightglue_aliked.onnx"), 128).unwrap();
-    assert_eq!(matcher.match_features(&r.a, &r.b).unwrap(), expected);
+    assert_eq!(matcher.match_features(&r.a, &r.b, LIGHTGLUE_MATCH_THRESHOLD).unwrap(), expected);
+    // A higher least probability keeps the reference's more probable matches only.
+    let probable = matcher.match_features(&r.a, &r.b, 0.5).unwrap();
+    assert_eq!(probable, mutual_matches(&reference, r.a.len(), r.b.len(), 0.5));
+    assert!(!probable.is_empty() && probable.len() < expected.len(), "{} of {}", probable.len(), expected.len());
 }
 
 #[test]
@@ -110,10 +113,9 @@ fn roll_search_finds_the_roll_of_a_rotated_real_pair() {
     let a = aliked.extract(&a_image, Roll::R0).unwrap();
     let b_by_roll: Vec<(Roll, LearnedFeatures)> =
         Roll::ALL.iter().map(|&roll| (roll, aliked.extract(&b_image, roll).unwrap())).collect();
-    let verify = VerifyOptions::default();
+    let options = CrossOptions { verify: VerifyOptions::default(), ..CrossOptions::default() };
     let search = |matcher: &mut LightGlue, search: RollSearch, place_roll: Option<Roll>| {
-        revisit_matching::match_with_rolls(matcher, &a, &b_by_roll, search, place_roll, DEFAULT_ROLL_MARGIN, &verify)
-            .unwrap()
+        revisit_matching::match_with_rolls(matcher, &a, &b_by_roll, (search, place_roll), &options).unwrap()
     };
     let off = search(&mut matcher, RollSearch::Off, None);
     assert_eq!(matcher.runs(), 1, "one roll, one run");

@@ -47,7 +47,7 @@ fn transposed_scores_are_an_error_naming_the_output() {
     let dir = models();
     let mut matcher = LightGlue::open(&runtime(), &dir.path().join("transposed_scores.onnx"), 64).unwrap();
     // As many cells as the right matrix, in the wrong shape.
-    let error = matcher.match_features(&features(3), &features(5)).expect_err("transposed scores were accepted");
+    let error = matcher.match_features(&features(3), &features(5), 0.1).expect_err("transposed scores were accepted");
     assert_names(&error, "transposed_scores.onnx", &["[1, 6, 4]", "[1, 4, 6]"]);
 }
 

@@ -6,7 +6,7 @@ use std::path::Path;
 use image::RgbImage;
 use revisit_core::{LearnedFeatures, Roll};
 use revisit_features::learned::{Aliked, LearnedExtractor, LearnedInput, XFeat, XFeatOptions};
-use revisit_matching::{match_with_rolls, CrossMatch, LightGlue, RollSearch, VerifyOptions};
+use revisit_matching::{match_with_rolls, CrossMatch, CrossOptions, LightGlue, RollSearch};
 use revisit_onnx::{OnnxError, Runtime};
 use serde::{Deserialize, Serialize};
 
@@ -110,15 +110,14 @@ impl Learned {
 
     /// Matches `a` with the second image's features at the rolls `search`
     /// needs, from `place_roll` when it searches in order (roll search alone,
-    /// without anchoring or acceptance).
+    /// without anchoring or acceptance), as `options` ask.
     pub fn match_rolls(
         &mut self,
         a: &LearnedFeatures,
         b_by_roll: &[(Roll, LearnedFeatures)],
-        (search, place_roll): (RollSearch, Option<Roll>),
-        roll_margin: f32,
-        verify: &VerifyOptions,
+        search: (RollSearch, Option<Roll>),
+        options: &CrossOptions,
     ) -> Result<CrossMatch, OnnxError> {
-        match_with_rolls(&mut self.matcher, a, b_by_roll, search, place_roll, roll_margin, verify)
+        match_with_rolls(&mut self.matcher, a, b_by_roll, search, options)
     }
 }

@@ -298,10 +298,8 @@ impl Matcher {
             .map(|r| Ok((*r, read(b, *r)?)))
             .collect::<Result<Vec<_>, NodeError>>()?;
         let search = (options.roll_search, self.place_rolls.get(&(a.clone(), b.clone())).copied());
-        let found = self
-            .learned
-            .match_rolls(&features_a, &b_by_roll, search, options.roll_margin, &options.verify)
-            .map_err(|e| work(e.to_string()))?;
+        let found =
+            self.learned.match_rolls(&features_a, &b_by_roll, search, options).map_err(|e| work(e.to_string()))?;
         let split = |name: &str| -> (String, String) {
             let (session, file) = name.split_once('/').unwrap_or(("", name));
             (session.to_owned(), file.to_owned())

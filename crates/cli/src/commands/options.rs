@@ -136,6 +136,15 @@ pub struct OptionArgs {
     /// SIFT keypoint, which links cross-session matches to each session's tracks.
     #[arg(long, default_value_t = revisit_matching::cross::DEFAULT_ANCHOR_RADIUS_PX, value_name = "PX")]
     anchor_radius: f32,
+    /// A learned match is kept only when LightGlue gives it more than this
+    /// probability. At LightGlue's own 0.1 it also keeps matches it places on
+    /// surfaces that changed between visits (renewed sand, bleached coral): a
+    /// few pixels off, they verify and make about half the cross-visit pairs
+    /// wrong at strong change. 0.5 keeps far fewer wrong pairs and places the
+    /// visits better where change is in appearance, but can leave too few right
+    /// pairs where corals moved (a storm).
+    #[arg(long, default_value_t = revisit_matching::cross::DEFAULT_MIN_MATCH_PROBABILITY, value_name = "P")]
+    min_match_probability: f32,
     /// Fewest verified inliers of a learned (cross-visit) pair.
     #[arg(long, default_value_t = revisit_matching::CROSS_MIN_INLIERS, value_name = "N")]
     cross_min_inliers: usize,
@@ -276,6 +285,7 @@ impl OptionArgs {
             RollSearchArg::Off => RollSearch::Off,
         };
         cross.roll_margin = self.roll_margin;
+        cross.min_match_probability = self.min_match_probability;
         cross.anchor_radius_px = self.anchor_radius;
         cross.verify.min_inliers = self.cross_min_inliers;
         cross.verify.max_error_px = self.cross_max_error;

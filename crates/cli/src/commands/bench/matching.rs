@@ -419,7 +419,8 @@ fn roll_figures(report: &Report, out: &Path, truth: &Path, tools: &ToolArgs) -> 
     let store = Store::open_read_only(&out.join("database.db"))?;
     let truth = TruthPairs::open(&store, truth)?;
     let pairs: Vec<_> = store.pair_records()?.into_iter().filter(|r| r.kind == PairKind::Cross).collect();
-    let CrossOptions { verify, roll_margin: margin, .. } = CrossOptions::default();
+    let options = CrossOptions::default();
+    let margin = options.roll_margin;
     let default_errors = mapped_pair_errors(&store, &truth)?;
     let mut figures = RollFigures {
         pairs: pairs.len(),
@@ -462,19 +463,19 @@ fn roll_figures(report: &Report, out: &Path, truth: &Path, tools: &ToolArgs) -> 
             .map(|r| Ok((*r, store.read_learned_features(pair.image_id2, method.name(), r.degrees())?)))
             .collect::<Result<Vec<_>>>()?;
         let start = Instant::now();
-        let full = learned.match_rolls(&a, &b_by_roll, (RollSearch::Full, None), margin, &verify)?;
+        let full = learned.match_rolls(&a, &b_by_roll, (RollSearch::Full, None), &options)?;
         figures.full_search_secs += start.elapsed().as_secs_f64();
         let start = Instant::now();
-        let probe = learned.match_rolls(&a, &b_by_roll, (RollSearch::PROBE, None), margin, &verify)?;
+        let probe = learned.match_rolls(&a, &b_by_roll, (RollSearch::PROBE, None), &options)?;
         figures.probe_search_secs += start.elapsed().as_secs_f64();
         let (start, runs_before) = (Instant::now(), learned.matcher.runs());
         let place = place_roll(pair.image_id1, pair.image_id2);
-        let ranked = learned.match_rolls(&a, &b_by_roll, (RollSearch::Predict, place), margin, &verify)?;
+        let ranked = learned.match_rolls(&a, &b_by_roll, (RollSearch::Predict, place), &options)?;
         figures.ranked_search_secs += start.elapsed().as_secs_f64();
         ranked_runs += learned.matcher.runs() - runs_before;
         let start = Instant::now();
         let chosen = b_by_roll.iter().find(|(r, _)| *r == full.roll).map_or(&b_by_roll[0], |x| x);
-        learned.match_rolls(&a, std::slice::from_ref(chosen), (RollSearch::Off, None), margin, &verify)?;
+        learned.match_rolls(&a, std::slice::from_ref(chosen), (RollSearch::Off, None), &options)?;
         figures.one_match_secs += start.elapsed().as_secs_f64();
         figures.probe_fell_back += usize::from(probe.fell_back);
         let agree = probe.roll == full.roll;

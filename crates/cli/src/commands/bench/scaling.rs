@@ -266,17 +266,17 @@ impl Sample {
             self.features(i)?;
             self.features(j)?;
         }
-        let CrossOptions { verify, roll_margin, .. } = CrossOptions::default();
+        let options = CrossOptions::default();
         // ONNX Runtime plans its kernels on the first call: one match untimed.
         if let Some(&(i, j)) = pairs.first() {
             let (a, b) = (self.features(i)?.clone(), self.features(j)?.clone());
-            self.learned.match_rolls(&a, &[(Roll::R0, b)], (RollSearch::Off, None), roll_margin, &verify)?;
+            self.learned.match_rolls(&a, &[(Roll::R0, b)], (RollSearch::Off, None), &options)?;
         }
         let mut total = 0.0;
         for &(i, j) in &pairs {
             let (a, b) = (self.features(i)?.clone(), self.features(j)?.clone());
             let start = Instant::now();
-            self.learned.match_rolls(&a, &[(Roll::R0, b)], (RollSearch::Off, None), roll_margin, &verify)?;
+            self.learned.match_rolls(&a, &[(Roll::R0, b)], (RollSearch::Off, None), &options)?;
             total += start.elapsed().as_secs_f64();
         }
         let secs = total / pairs.len().max(1) as f64;
