@@ -41,9 +41,10 @@ pub const CROSS_MIN_INLIERS: usize = 30;
 /// fundamental matrix. On `scripts/demo.sh`'s survey (issue 11's note) half the
 /// verified cross-visit pairs (52 of 108) are wrong by the truth at 0.1 and the
 /// model is 0.98 px off; at 0.5, 3 of 54 and 0.52 px, with as many right pairs.
-/// It stays at 0.1 because on a storm survey (3 x 12, seed 5) 0.5 leaves too
-/// few right pairs: the three that remain wrong (a moved coral, matched with
-/// confidence) merge a visit 119 px off, where 0.1 links it right.
+/// It stays at 0.1 because 0.5 leaves too few right pairs elsewhere: on a storm
+/// survey (3 x 12, seed 5) the three that remain wrong (a moved coral, matched
+/// with confidence) merge a visit 119 px off, where 0.1 links it right, and
+/// `tests/compare.rs`'s 2 x 10 reef keeps 7 pairs and leaves a visit out.
 pub const DEFAULT_MIN_MATCH_PROBABILITY: f32 = LIGHTGLUE_MATCH_THRESHOLD;
 
 /// Anchoring radius, by default, pixels.

@@ -33,8 +33,8 @@ const fn contract(inputs: &'static [InputSpec]) -> Contract {
 }
 
 /// LightGlue's own minimum match probability (its `filter_threshold`), as its
-/// reference matches are counted; cross-visit matching asks for more
-/// (`CrossOptions::min_match_probability`).
+/// reference matches are counted; Revisit's learned pairs use
+/// `CrossOptions::min_match_probability` (by default the same).
 pub const LIGHTGLUE_MATCH_THRESHOLD: f32 = 0.1;
 
 /// An opened LightGlue-family model for descriptors of `descriptor_dim`.
