@@ -92,6 +92,7 @@ pub struct CrossVisitMatches {
     pub rolls_tried: Vec<i32>,
     pub inliers_by_roll: Vec<u32>,
     pub fell_back: bool,
+    pub probabilities: Vec<f32>,
 }
 
 #[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]

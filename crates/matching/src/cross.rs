@@ -11,6 +11,12 @@
 //! 2. its matches, once each learned keypoint is anchored to the image's own
 //!    keypoint at the same spot and every keypoint is used at most once per
 //!    side, verify geometrically with at least `verify.min_inliers` inliers.
+//!
+//! A pair so accepted is *confident* when its more probable matches
+//! (`confident_probability`) verify on their own; their inliers are kept
+//! beside the pair's. The others are *weak*. Asked to (`confident_pairs`),
+//! the consistency stage maps two visits that hold enough confident pairs on
+//! those alone, each on its confident inliers, and sets the weak ones aside.
 
 use std::collections::HashSet;
 
@@ -44,8 +50,16 @@ pub const CROSS_MIN_INLIERS: usize = 30;
 /// It stays at 0.1 because 0.5 leaves too few right pairs elsewhere: on a storm
 /// survey (3 x 12, seed 5) the three that remain wrong (a moved coral, matched
 /// with confidence) merge a visit 119 px off, where 0.1 links it right, and
-/// `tests/compare.rs`'s 2 x 10 reef keeps 7 pairs and leaves a visit out.
+/// `tests/compare.rs`'s 2 x 10 reef keeps 7 pairs and leaves a visit out. The
+/// confident pairs ([`CrossOptions::confident_probability`]) take the more
+/// probable matches where there are enough of them.
 pub const DEFAULT_MIN_MATCH_PROBABILITY: f32 = LIGHTGLUE_MATCH_THRESHOLD;
+
+/// Least probability of a confident match, by default: see
+/// [`CrossOptions::confident_probability`]. On `scripts/demo.sh`'s survey
+/// (issue 11's note) verifying a pair on its matches above 0.5 leaves 3 wrong
+/// pairs of 54 where all matches above 0.1 leave 52 of 108.
+pub const DEFAULT_CONFIDENT_PROBABILITY: f32 = 0.5;
 
 /// Anchoring radius, by default, pixels.
 pub const DEFAULT_ANCHOR_RADIUS_PX: f32 = 1.5;
@@ -61,6 +75,18 @@ pub struct CrossOptions {
     /// A learned match is kept when its probability (exp of LightGlue's
     /// score) is above this. Default [`DEFAULT_MIN_MATCH_PROBABILITY`].
     pub min_match_probability: f32,
+    /// An accepted pair whose matches at least this probable verify on their
+    /// own is confident (their inliers are kept too). Default
+    /// [`DEFAULT_CONFIDENT_PROBABILITY`].
+    pub confident_probability: f32,
+    /// When given, two visits with at least this many confident pairs are
+    /// mapped with those alone, each on its confident inliers, and their weak
+    /// (verified, not confident) pairs are set aside before mapping: those
+    /// hold the matches LightGlue was unsure of, on surfaces that changed, a
+    /// few pixels off. Default `None` (every verified pair mapped whole): where
+    /// corals grew or moved, LightGlue is sure of them, and the rule keeps
+    /// just the wrong pairs (README).
+    pub confident_pairs: Option<usize>,
     /// The winning roll's inliers must be at least this many times the
     /// runner-up's, or the pair is rejected (and a probe falls back to the
     /// full search). 1 turns the check off. Default [`DEFAULT_ROLL_MARGIN`].
@@ -97,6 +123,8 @@ impl Default for CrossOptions {
         CrossOptions {
             roll_search: RollSearch::DEFAULT,
             min_match_probability: DEFAULT_MIN_MATCH_PROBABILITY,
+            confident_probability: DEFAULT_CONFIDENT_PROBABILITY,
+            confident_pairs: None,
             roll_margin: DEFAULT_ROLL_MARGIN,
             anchor_radius_px: DEFAULT_ANCHOR_RADIUS_PX,
             verify: VerifyOptions { min_inliers: CROSS_MIN_INLIERS, ..VerifyOptions::default() },
@@ -112,6 +140,10 @@ impl CrossOptions {
     pub fn check(&self) -> Result<(), OptionsError> {
         self.roll_search.check()?;
         check_range("min_match_probability", self.min_match_probability, 0.0, 1.0, "in [0, 1]")?;
+        check_range("confident_probability", self.confident_probability, 0.0, 1.0, "in [0, 1]")?;
+        if let Some(pairs) = self.confident_pairs {
+            check_range("confident_pairs", pairs, 1, usize::MAX, "at least 1")?;
+        }
         check_range("roll_margin", self.roll_margin, 1.0, f32::MAX, "at least 1")?;
         check_range("anchor_radius_px", self.anchor_radius_px, 0.0, 100.0, "in [0, 100]")?;
         check_range("consistency_tolerance_deg", self.consistency_tolerance_deg, 1.0, 180.0, "in [1, 180]")?;
@@ -141,6 +173,9 @@ pub struct LearnedPairMatch {
     pub inliers: Vec<[CrossKey; 2]>,
     /// The verified geometry between the unrolled images (degenerate if rejected).
     pub geometry: TwoViewGeometry,
+    /// A confident pair's confident inliers and their geometry (see the
+    /// module's documentation); `None` for a weak or rejected pair.
+    pub confident: Option<(Vec<[CrossKey; 2]>, TwoViewGeometry)>,
 }
 
 impl LearnedPairMatch {
@@ -209,13 +244,15 @@ pub fn accept(
         _ => CrossKey::Learned(learned),
     };
     let (mut used_a, mut used_b) = (HashSet::new(), HashSet::new());
-    let matches: Vec<[CrossKey; 2]> = found
+    let probability = |k: usize| found.probabilities.get(k).copied().unwrap_or(0.0);
+    let (matches, probabilities): (Vec<[CrossKey; 2]>, Vec<f32>) = found
         .matches
         .iter()
-        .filter(|[i, j]| (*i as usize) < positions[0].len() && (*j as usize) < positions[1].len())
-        .map(|&[i, j]| [key(0, i), key(1, j)])
-        .filter(|[ka, kb]| used_a.insert(*ka) && used_b.insert(*kb))
-        .collect();
+        .enumerate()
+        .filter(|(_, [i, j])| (*i as usize) < positions[0].len() && (*j as usize) < positions[1].len())
+        .map(|(k, &[i, j])| ([key(0, i), key(1, j)], probability(k)))
+        .filter(|([ka, kb], _)| used_a.insert(*ka) && used_b.insert(*kb))
+        .unzip();
     let position = |side: usize, key: CrossKey| -> Keypoint {
         let at = |[x, y]: [f32; 2]| Keypoint { x, y, scale: 1.0, orientation: 0.0 };
         match key {
@@ -223,15 +260,28 @@ pub fn accept(
             CrossKey::Learned(l) => at(positions[side].get(l as usize).copied().unwrap_or([f32::NAN; 2])),
         }
     };
-    let geometry = if found.roll_is_clear(options.roll_margin) {
-        let points_a: Vec<Keypoint> = matches.iter().map(|m| position(0, m[0])).collect();
-        let points_b: Vec<Keypoint> = matches.iter().map(|m| position(1, m[1])).collect();
-        let identity: Vec<[u32; 2]> = (0..matches.len() as u32).map(|k| [k, k]).collect();
-        verify(&points_a, &points_b, &identity, &options.verify)
-    } else {
-        TwoViewGeometry::degenerate()
+    let verified = |kept: &[usize]| {
+        let points_a: Vec<Keypoint> = kept.iter().map(|&k| position(0, matches[k][0])).collect();
+        let points_b: Vec<Keypoint> = kept.iter().map(|&k| position(1, matches[k][1])).collect();
+        let identity: Vec<[u32; 2]> = (0..kept.len() as u32).map(|k| [k, k]).collect();
+        let geometry = verify(&points_a, &points_b, &identity, &options.verify);
+        let inliers: Vec<[CrossKey; 2]> =
+            geometry.inlier_matches.iter().filter_map(|m| kept.get(m[0] as usize).map(|&k| matches[k])).collect();
+        (inliers, geometry)
     };
-    let inliers = geometry.inlier_matches.iter().filter_map(|m| matches.get(m[0] as usize).copied()).collect();
+    let (mut inliers, mut geometry, mut confident) = (Vec::new(), TwoViewGeometry::degenerate(), None);
+    if found.roll_is_clear(options.roll_margin) {
+        (inliers, geometry) = verified(&(0..matches.len()).collect::<Vec<_>>());
+        let sure: Vec<usize> = (0..matches.len())
+            .filter(|&k| probabilities.get(k).is_some_and(|p| *p >= options.confident_probability))
+            .collect();
+        if !inliers.is_empty() {
+            confident = match sure.len() == matches.len() {
+                true => Some((inliers.clone(), geometry.clone())),
+                false => Some(verified(&sure)).filter(|(sure_inliers, _)| !sure_inliers.is_empty()),
+            };
+        }
+    }
     LearnedPairMatch {
         roll: found.roll,
         inliers_by_roll: found.inliers_by_roll.clone(),
@@ -241,6 +291,7 @@ pub fn accept(
         matches,
         inliers,
         geometry,
+        confident,
     }
 }
 
@@ -273,6 +324,7 @@ mod tests {
         CrossMatch {
             roll: Roll::R0,
             matches: (0..n as u32).map(|k| [k, k]).collect(),
+            probabilities: vec![0.9; n],
             geometry: TwoViewGeometry::degenerate(),
             inliers_by_roll,
             fell_back: false,
@@ -294,6 +346,26 @@ mod tests {
         assert!(pair.inliers.len() >= 70, "{} inliers", pair.inliers.len());
         assert!(pair.inliers.contains(&[CrossKey::Own(0), CrossKey::Learned(3)]));
         assert!(!pair.inliers.iter().any(|m| m[0] == CrossKey::Learned(3)));
+    }
+
+    #[test]
+    fn a_pair_whose_probable_matches_verify_alone_is_confident() {
+        let (a, mut b) = two_views(90);
+        // The last 30 matches, of low probability, a few pixels off (as on a surface that changed).
+        for point in &mut b[60..] {
+            point[0] += 2.5;
+        }
+        let mut unsure = found(90, vec![(Roll::R0, 90)]);
+        unsure.probabilities = (0..90).map(|k| if k < 60 { 0.9 } else { 0.2 }).collect();
+        let pair = accept(&unsure, [a.clone(), b.clone()], [&[], &[]], &Default::default());
+        let (sure, _) = pair.confident.as_ref().expect("confident");
+        assert!(sure.len() >= 55, "{} confident inliers", sure.len());
+        assert!(sure.iter().all(|m| matches!(m[0], CrossKey::Learned(k) if k < 60)));
+        assert!(pair.inliers.len() > sure.len(), "the pair keeps all its inliers too");
+        // Too few probable matches to verify alone: the pair is weak.
+        unsure.probabilities = (0..90).map(|k| if k < 20 { 0.9 } else { 0.2 }).collect();
+        let pair = accept(&unsure, [a, b], [&[], &[]], &Default::default());
+        assert!(pair.accepted() && pair.confident.is_none());
     }
 
     #[test]
@@ -329,5 +401,7 @@ mod tests {
         assert!(CrossOptions { roll_margin: 0.5, ..Default::default() }.check().is_err());
         assert!(CrossOptions { roll_search: RollSearch::Probe { budget: 4 }, ..Default::default() }.check().is_err());
         assert!(CrossOptions { roll_search: RollSearch::Predict, ..Default::default() }.check().is_ok());
+        assert!(CrossOptions { confident_probability: 1.5, ..Default::default() }.check().is_err());
+        assert!(CrossOptions { confident_pairs: Some(0), ..Default::default() }.check().is_err());
     }
 }

@@ -107,13 +107,13 @@ impl LightGlue {
         Ok(scores.into_iter().collect())
     }
 
-    /// Mutual best matches `[index in a, index in b]` more probable than `min_probability`.
+    /// Mutual best matches more probable than `min_probability`.
     pub fn match_features(
         &mut self,
         a: &LearnedFeatures,
         b: &LearnedFeatures,
         min_probability: f32,
-    ) -> Result<Vec<[u32; 2]>, OnnxError> {
+    ) -> Result<Vec<LearnedMatch>, OnnxError> {
         if a.is_empty() || b.is_empty() {
             return Ok(Vec::new());
         }
@@ -122,10 +122,18 @@ impl LightGlue {
     }
 }
 
+/// A learned match: `[index in a, index in b]`, and how probable the matcher
+/// finds it (exp of its score).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct LearnedMatch {
+    pub indices: [u32; 2],
+    pub probability: f32,
+}
+
 /// Mutual row/column maxima of the `rows` x `cols` block of a
 /// (rows + 1) x (cols + 1) log-assignment matrix with exp(score) > `threshold`.
 /// None if `scores` is not of that size.
-pub fn mutual_matches(scores: &[f32], rows: usize, cols: usize, threshold: f32) -> Vec<[u32; 2]> {
+pub fn mutual_matches(scores: &[f32], rows: usize, cols: usize, threshold: f32) -> Vec<LearnedMatch> {
     if scores.len() != (rows + 1) * (cols + 1) {
         return Vec::new();
     }
@@ -146,7 +154,8 @@ pub fn mutual_matches(scores: &[f32], rows: usize, cols: usize, threshold: f32) 
         .filter_map(|(i, best)| {
             let j = (*best)?;
             let score = finite(scores[i * stride + j]);
-            (best_in_column[j] == Some(i) && score > log_threshold).then_some([i as u32, j as u32])
+            (best_in_column[j] == Some(i) && score > log_threshold)
+                .then(|| LearnedMatch { indices: [i as u32, j as u32], probability: score.exp() })
         })
         .collect()
 }
@@ -181,12 +190,14 @@ mod tests {
             ln(0.1),
             0.0,
         ];
-        assert_eq!(mutual_matches(&scores, 2, 2, 0.1), vec![[0, 0]]);
-        assert_eq!(mutual_matches(&scores, 2, 2, 0.95), Vec::<[u32; 2]>::new());
+        let found = mutual_matches(&scores, 2, 2, 0.1);
+        assert_eq!(found.iter().map(|m| m.indices).collect::<Vec<_>>(), vec![[0, 0]]);
+        assert!((found[0].probability - 0.9).abs() < 1e-6, "{found:?}");
+        assert!(mutual_matches(&scores, 2, 2, 0.95).is_empty());
     }
 
     #[test]
     fn mutual_matches_of_a_matrix_of_the_wrong_size_are_none() {
-        assert_eq!(mutual_matches(&[0.0; 4], 2, 2, 0.1), Vec::<[u32; 2]>::new());
+        assert!(mutual_matches(&[0.0; 4], 2, 2, 0.1).is_empty());
     }
 }

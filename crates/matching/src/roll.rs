@@ -22,7 +22,7 @@ use serde::{Deserialize, Serialize};
 
 use crate::consistency::UNLINKED_MIN_INLIERS;
 use crate::cross::CrossOptions;
-use crate::lightglue::LightGlue;
+use crate::lightglue::{LearnedMatch, LightGlue};
 use crate::verify::{verify, VerifyOptions};
 use crate::{check_range, OptionsError};
 
@@ -131,6 +131,8 @@ pub struct CrossMatch {
     pub roll: Roll,
     /// Every mutual match at that roll, `[index in a, index in b at that roll]`.
     pub matches: Vec<[u32; 2]>,
+    /// Each match's probability, side by side with `matches` (empty when not known).
+    pub probabilities: Vec<f32>,
     /// Verified geometry between the unrolled images (same indices).
     pub geometry: TwoViewGeometry,
     /// Inliers found at each roll tried (probe counts for a conclusive probe).
@@ -203,12 +205,13 @@ pub fn match_with_rolls(
     let (roll_margin, verify_options) = (options.roll_margin, &options.verify);
     let a_keypoints = unrolled_keypoints(a, Roll::R0);
     let full = |matcher: &mut LightGlue, roll: Roll, b: &LearnedFeatures| -> Result<CrossMatch, OnnxError> {
-        let matches = matcher.match_features(a, b, options.min_match_probability)?;
+        let (matches, probabilities) = split(matcher.match_features(a, b, options.min_match_probability)?);
         let geometry = verify(&a_keypoints, &unrolled_keypoints(b, roll), &matches, verify_options);
         let inliers = geometry.inlier_matches.len();
         Ok(CrossMatch {
             roll,
             matches,
+            probabilities,
             geometry,
             inliers_by_roll: vec![(roll, inliers)],
             fell_back: false,
@@ -226,6 +229,7 @@ pub fn match_with_rolls(
         return Ok(CrossMatch {
             roll: Roll::R0,
             matches: Vec::new(),
+            probabilities: Vec::new(),
             geometry,
             inliers_by_roll: Vec::new(),
             fell_back: false,
@@ -264,6 +268,7 @@ pub fn match_with_rolls(
             let mut probe = CrossMatch {
                 roll: first.0,
                 matches: Vec::new(),
+                probabilities: Vec::new(),
                 geometry: TwoViewGeometry::degenerate(),
                 inliers_by_roll: Vec::new(),
                 fell_back: false,
@@ -272,7 +277,7 @@ pub fn match_with_rolls(
             let mut best: Option<(usize, usize, &LearnedFeatures)> = None;
             for (roll, b) in &candidates {
                 let b_probe = b.strongest(budget);
-                let matches = matcher.match_features(&a_probe, &b_probe, options.min_match_probability)?;
+                let (matches, _) = split(matcher.match_features(&a_probe, &b_probe, options.min_match_probability)?);
                 let geometry =
                     verify(&a_probe_keypoints, &unrolled_keypoints(&b_probe, *roll), &matches, &probe_verify);
                 let inliers = geometry.inlier_matches.len();
@@ -314,7 +319,7 @@ pub fn match_at_prediction(
     for &roll in &rolls {
         let Some((_, b)) = b_by_roll.iter().find(|(r, _)| *r == roll) else { continue };
         let b_keypoints = unrolled_keypoints(b, roll);
-        let matches = matcher.match_features(a, b, options.min_match_probability)?;
+        let (matches, probabilities) = split(matcher.match_features(a, b, options.min_match_probability)?);
         let geometry = verify(&a_keypoints, &b_keypoints, &matches, &options.verify);
         tried.push((roll, geometry.inlier_matches.len()));
         let at = |keypoints: &[Keypoint], side: usize| -> Vec<[f64; 2]> {
@@ -325,6 +330,7 @@ pub fn match_at_prediction(
             return Ok(CrossMatch {
                 roll,
                 matches,
+                probabilities,
                 geometry,
                 inliers_by_roll: tried,
                 fell_back: false,
@@ -335,11 +341,17 @@ pub fn match_at_prediction(
     Ok(CrossMatch {
         roll: rolls[0],
         matches: Vec::new(),
+        probabilities: Vec::new(),
         geometry: TwoViewGeometry::degenerate(),
         inliers_by_roll: tried,
         fell_back: false,
         predicted: Some(rolls[0]),
     })
+}
+
+/// Learned matches as verification takes them, and their probabilities, side by side.
+fn split(found: Vec<LearnedMatch>) -> (Vec<[u32; 2]>, Vec<f32>) {
+    found.into_iter().map(|m| (m.indices, m.probability)).unzip()
 }
 
 #[cfg(test)]

@@ -399,7 +399,14 @@ pub fn write_learned_pair(
         CrossSide { image_id: pair.image_id1, method, roll_deg: 0, positions: positions_a },
         CrossSide { image_id: pair.image_id2, method, roll_deg: matched.roll.degrees(), positions: positions_b },
     ];
-    store.write_cross_pair(&record, sides, &matched.matches, &matched.inliers, &matched.geometry)?;
+    let confident = matched.confident.as_ref().filter(|_| pair.kind == PairKind::Cross);
+    store.write_cross_pair(
+        &record,
+        sides,
+        &matched.matches,
+        (&matched.inliers, &matched.geometry),
+        confident.map(|(inliers, geometry)| (inliers.as_slice(), geometry)),
+    )?;
     Ok(())
 }
 
@@ -742,6 +749,14 @@ pub struct ConsistencyCounts {
     /// Inconsistent pairs set aside (not mapped): every one when asked for,
     /// those off the navigation when mapping change-aware, the unlinked ones always.
     pub set_aside: usize,
+    /// Confident pairs mapped on their confident inliers: between two visits
+    /// that hold enough of them (`CrossOptions::confident_pairs`, when given).
+    #[serde(default)]
+    pub confident: usize,
+    /// Weak pairs set aside (not mapped): verified, not confident, between two
+    /// visits that hold enough confident pairs (`CrossOptions::confident_pairs`).
+    #[serde(default)]
+    pub weak: usize,
 }
 
 impl ConsistencyCounts {
@@ -786,9 +801,18 @@ pub fn check_consistency(
         &navigation,
         options.loop_tolerance,
     );
+    let confidence =
+        Confidence::of(&store.pair_records()?, &store.confident_pairs()?, visit_of, options.confident_pairs);
+    let weak = &confidence.weak;
     let mut aside = store.set_aside_pairs()?;
-    let mut counts = ConsistencyCounts { checked: verdicts.len(), ..ConsistencyCounts::default() };
+    let mut counts = ConsistencyCounts {
+        checked: verdicts.len(),
+        confident: confidence.mapped.len(),
+        weak: weak.len(),
+        ..ConsistencyCounts::default()
+    };
     let mut confirmed = Vec::new();
+    let mut handled = BTreeSet::new();
     for (index, verdict) in verdicts {
         let pair = &checked[index];
         let id = pair_id(pair.image_id1, pair.image_id2);
@@ -798,7 +822,10 @@ pub fn check_consistency(
             Verdict::Consistent => continue,
             Verdict::Confirmed { .. } => {
                 counts.confirmed += 1;
-                confirmed.push((pair.image_id1, pair.image_id2));
+                // The model is checked against the pairs it was made from.
+                if !weak.contains_key(&id) {
+                    confirmed.push((pair.image_id1, pair.image_id2));
+                }
                 continue;
             }
             Verdict::OffNavigation { miss_m, tolerance_m } => {
@@ -827,28 +854,96 @@ pub fn check_consistency(
             }
         };
         let (a, b) = (&names[&pair.image_id1], &names[&pair.image_id2]);
-        if options.set_aside_inconsistent || (off_navigation && change_aware) || unlinked {
+        if options.set_aside_inconsistent || (off_navigation && change_aware) || unlinked || weak.contains_key(&id) {
             tracing::warn!("cross-visit pair {a} - {b} set aside: {reason}");
-            if aside.remove(&id).is_none() {
-                store.set_aside(id, &reason)?;
-            }
+            put_aside(store, &mut aside, id, &reason)?;
+            handled.insert(id);
             counts.set_aside += 1;
         } else {
             tracing::warn!("cross-visit pair {a} - {b} is inconsistent (mapped all the same): {reason}");
         }
     }
+    for (id, visits) in weak {
+        if !handled.contains(id) {
+            let reason = format!("weak: its visits hold {} confident pairs", confidence.per_visits[visits]);
+            put_aside(store, &mut aside, *id, &reason)?;
+        }
+    }
+    for ([v1, v2], confident) in &confidence.per_visits {
+        let weak = weak.values().filter(|visits| *visits == &[*v1, *v2]).count();
+        tracing::info!(
+            "{} - {}: {confident} confident cross-visit pairs mapped on their confident inliers, {weak} weak ones set aside",
+            sessions[*v1].name,
+            sessions[*v2].name
+        );
+    }
     // What stays in `aside` is consistent now, or no longer to be set aside.
     for id in aside.into_keys() {
         store.restore_set_aside(id)?;
     }
+    // Then every confident pair COLMAP sees is mapped on the inliers the rule gives it.
+    for id in store.confident_pairs()? {
+        store.use_confident(id, confidence.mapped.contains_key(&id))?;
+    }
     Ok(Consistency { counts, confirmed })
+}
+
+/// Sets pair `id` aside for `reason` unless `aside` (the pairs set aside before) has it; takes it
+/// out of `aside`.
+fn put_aside(store: &mut Store, aside: &mut BTreeMap<u64, String>, id: u64, reason: &str) -> Result<(), PipelineError> {
+    if aside.remove(&id).is_none() {
+        store.set_aside(id, reason)?;
+    }
+    Ok(())
+}
+
+/// The confident-pairs rule ([`CrossOptions::confident_pairs`]) over the verified cross-visit
+/// pairs: between two visits with enough confident pairs, those are mapped on their confident
+/// inliers and the weak ones set aside.
+struct Confidence {
+    /// The confident pairs so mapped, by pair id, with their two visits (in visit order).
+    mapped: BTreeMap<u64, [usize; 2]>,
+    /// The weak pairs so set aside, likewise.
+    weak: BTreeMap<u64, [usize; 2]>,
+    /// How many confident pairs each such pair of visits holds.
+    per_visits: BTreeMap<[usize; 2], usize>,
+}
+
+impl Confidence {
+    /// The rule over `records`, of which `confident` (pair ids) hold a confident geometry; none
+    /// without `min_confident`.
+    fn of(
+        records: &[PairRecord],
+        confident: &BTreeSet<u64>,
+        visit_of: &BTreeMap<ImageId, usize>,
+        min_confident: Option<usize>,
+    ) -> Confidence {
+        let verified: Vec<(u64, [usize; 2])> = records
+            .iter()
+            .filter(|r| r.kind == PairKind::Cross && r.num_inliers > 0)
+            .filter_map(|r| {
+                let (v1, v2) = (*visit_of.get(&r.image_id1)?, *visit_of.get(&r.image_id2)?);
+                Some((pair_id(r.image_id1, r.image_id2), [v1.min(v2), v1.max(v2)]))
+            })
+            .collect();
+        let mut per_visits: BTreeMap<[usize; 2], usize> = BTreeMap::new();
+        for (_, visits) in verified.iter().filter(|(id, _)| confident.contains(id)) {
+            *per_visits.entry(*visits).or_default() += 1;
+        }
+        per_visits.retain(|_, count| min_confident.is_some_and(|least| *count >= least));
+        let (mapped, weak) = verified
+            .into_iter()
+            .filter(|(_, visits)| per_visits.contains_key(visits))
+            .partition(|(id, _)| confident.contains(id));
+        Confidence { mapped, weak, per_visits }
+    }
 }
 
 /// What [`check_consistency`] found: the counts, and the confirmed pairs.
 #[derive(Clone, Debug, Default, PartialEq)]
 pub struct Consistency {
     pub counts: ConsistencyCounts,
-    /// The cross-visit pairs the loops confirm, `(image 1, image 2)` as stored.
+    /// The mapped cross-visit pairs the loops confirm, `(image 1, image 2)` as stored.
     pub confirmed: Vec<(ImageId, ImageId)>,
 }
 
@@ -961,5 +1056,34 @@ mod tests {
         let positions_m = x.into_iter().map(|(id, x)| (id, Point3::new(x, 0.0, -10.0))).collect();
         let nearby = Nearby { positions_m, radius_m: 1.0 };
         assert_eq!(plan(Some(&nearby)), [(1, 4, 1), (2, 4, 0)]);
+    }
+
+    #[test]
+    fn weak_pairs_go_only_between_visits_with_enough_confident_ones() {
+        // Visits 0 (images 1-3), 1 (4-6) and 2 (7-9).
+        let visit_of: BTreeMap<ImageId, usize> = (1..=9).map(|id| (id, (id as usize - 1) / 3)).collect();
+        let record = |a: ImageId, b: ImageId, num_inliers: usize| PairRecord {
+            image_id1: a,
+            image_id2: b,
+            kind: PairKind::Cross,
+            method: "aliked-lightglue".into(),
+            roll_deg: 0,
+            predicted_roll_deg: None,
+            num_matches: 100,
+            num_inliers,
+        };
+        // Visits 0-1: two confident pairs, a weak one and one that did not verify; visits 0-2
+        // and 1-2: one confident pair each, and a weak one.
+        let records = [(1, 4, 60), (2, 5, 50), (3, 6, 40), (1, 6, 0), (1, 7, 60), (2, 8, 45), (4, 9, 60), (6, 9, 45)]
+            .map(|(a, b, n)| record(a, b, n));
+        let confident = BTreeSet::from([pair_id(1, 4), pair_id(2, 5), pair_id(1, 7), pair_id(4, 9)]);
+        let rule = Confidence::of(&records, &confident, &visit_of, Some(2));
+        assert_eq!(rule.weak, BTreeMap::from([(pair_id(3, 6), [0, 1])]));
+        assert_eq!(rule.mapped, BTreeMap::from([(pair_id(1, 4), [0, 1]), (pair_id(2, 5), [0, 1])]));
+        assert_eq!(rule.per_visits, BTreeMap::from([([0, 1], 2)]));
+        let rule = Confidence::of(&records, &confident, &visit_of, Some(1));
+        assert_eq!((rule.mapped.len(), rule.weak.len()), (4, 3));
+        assert!(Confidence::of(&records, &confident, &visit_of, Some(3)).mapped.is_empty());
+        assert!(Confidence::of(&records, &confident, &visit_of, None).weak.is_empty());
     }
 }

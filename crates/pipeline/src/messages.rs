@@ -149,6 +149,7 @@ pub fn cross_match_message(
         rolls_tried: found.inliers_by_roll.iter().map(|(roll, _)| roll.degrees() as i32).collect(),
         inliers_by_roll: found.inliers_by_roll.iter().map(|(_, n)| *n as u32).collect(),
         fell_back: found.fell_back,
+        probabilities: found.probabilities.clone(),
     }
 }
 
@@ -163,6 +164,9 @@ pub fn cross_match(message: &CrossVisitMatches) -> Result<CrossMatch, String> {
     if !message.matches.len().is_multiple_of(2) || message.rolls_tried.len() != message.inliers_by_roll.len() {
         return Err("matches must come in pairs and each roll tried must have its inlier count".into());
     }
+    if !message.probabilities.is_empty() && 2 * message.probabilities.len() != message.matches.len() {
+        return Err("probabilities must be empty or one per match".into());
+    }
     let inliers_by_roll = message
         .rolls_tried
         .iter()
@@ -172,6 +176,7 @@ pub fn cross_match(message: &CrossVisitMatches) -> Result<CrossMatch, String> {
     Ok(CrossMatch {
         roll: roll_of(message.roll_degrees)?,
         matches: message.matches.chunks_exact(2).map(|m| [m[0], m[1]]).collect(),
+        probabilities: message.probabilities.clone(),
         geometry: TwoViewGeometry::degenerate(),
         inliers_by_roll,
         fell_back: message.fell_back,

@@ -542,6 +542,7 @@ impl Workspace {
             .into_iter()
             .collect();
         let aside: Vec<u64> = self.store.set_aside_pairs()?.into_keys().collect();
+        let confident: Vec<u64> = self.store.confident_in_use()?.into_iter().collect();
         let priors = self.store.pose_priors()?;
         let priors_fingerprint = mapping::priors_fingerprint(&priors);
         let fingerprint = {
@@ -550,7 +551,7 @@ impl Workspace {
             let cameras: Vec<&Camera> = self.sessions.iter().flat_map(|s| s.cameras.values()).collect();
             format!(
                 "{} images {names:?}; cameras {cameras:?}, constant {constant:?}; {} pairs, {inliers} inliers, \
-                 set aside {aside:?}; priors {priors_fingerprint}; {:?}",
+                 set aside {aside:?}, confident {confident:?}; priors {priors_fingerprint}; {:?}",
                 names.len(),
                 records.len(),
                 self.options.mapper

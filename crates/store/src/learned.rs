@@ -100,15 +100,16 @@ impl Store {
     /// Stores a cross-visit pair in one transaction: appends the learned
     /// keypoints its matches use that are not yet in the images' keypoint
     /// lists, then writes matches, geometry and record with the final indices.
-    /// `matches` and `inliers` are (side 1, side 2) keys; `geometry`'s own
-    /// inlier list is ignored.
+    /// `matches` and the inliers are (side 1, side 2) keys; each geometry's
+    /// own inlier list is ignored. `confident`: the inliers and geometry of
+    /// its confident matches, when they verified alone.
     pub fn write_cross_pair(
         &mut self,
         record: &PairRecord,
         sides: [CrossSide<'_>; 2],
         matches: &[[CrossKey; 2]],
-        inliers: &[[CrossKey; 2]],
-        geometry: &TwoViewGeometry,
+        (inliers, geometry): (&[[CrossKey; 2]], &TwoViewGeometry),
+        confident: Option<(&[[CrossKey; 2]], &TwoViewGeometry)>,
     ) -> Result<()> {
         let path = self.path.clone();
         let sql = |source| StoreError::Sqlite { path: path.clone(), source };
@@ -118,6 +119,7 @@ impl Store {
             let keys: BTreeSet<u32> = matches
                 .iter()
                 .chain(inliers)
+                .chain(confident.into_iter().flat_map(|(sure, _)| sure))
                 .filter_map(|m| match m[s] {
                     CrossKey::Learned(l) => Some(l),
                     CrossKey::Own(_) => None,
@@ -131,8 +133,10 @@ impl Store {
         };
         let translate =
             |m: &[[CrossKey; 2]]| -> Vec<[u32; 2]> { m.iter().map(|&[a, b]| [index(0, a), index(1, b)]).collect() };
-        let geometry = TwoViewGeometry { inlier_matches: translate(inliers), ..geometry.clone() };
-        insert_pair(&tx, record, &translate(matches), &geometry).map_err(sql)?;
+        let verified = TwoViewGeometry { inlier_matches: translate(inliers), ..geometry.clone() };
+        let confident =
+            confident.map(|(inliers, g)| TwoViewGeometry { inlier_matches: translate(inliers), ..g.clone() });
+        insert_pair(&tx, record, &translate(matches), &verified, confident.as_ref()).map_err(sql)?;
         tx.commit().map_err(sql)
     }
 

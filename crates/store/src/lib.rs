@@ -376,7 +376,7 @@ impl Store {
         let path = self.path.clone();
         let sql = |source| StoreError::Sqlite { path: path.clone(), source };
         let tx = self.conn.transaction().map_err(sql)?;
-        insert_pair(&tx, record, matches, geometry).map_err(sql)?;
+        insert_pair(&tx, record, matches, geometry, None).map_err(sql)?;
         tx.commit().map_err(sql)
     }
 
@@ -455,18 +455,81 @@ impl Store {
         rows.collect::<std::result::Result<_, _>>().map_err(|e| self.sql(e))
     }
 
-    /// The verified inlier matches of a pair, indexed (smaller id, larger id),
-    /// whether COLMAP sees them or they were set aside.
-    pub fn verified_matches(&self, pair: u64) -> Result<Vec<[u32; 2]>> {
-        if let Some((_, matches)) = self.two_view_geometry(pair)? {
-            return Ok(matches);
-        }
-        let data: Option<Option<Vec<u8>>> = self
-            .conn
-            .query_row("SELECT data FROM revisit_set_aside WHERE pair_id = ?1", [pair as i64], |r| r.get(0))
+    /// Puts a confident pair's confident geometry where COLMAP reads it (`true`), or its verified
+    /// geometry back (`false`): the two change places, the other kept aside. Nothing is done to a
+    /// pair without a confident geometry or set aside (COLMAP does not see it). Returns whether the
+    /// geometries changed places. One transaction.
+    pub fn use_confident(&mut self, pair: u64, yes: bool) -> Result<bool> {
+        const COLUMNS: &str = "rows, cols, data, config, F, E, H, qvec, tvec";
+        let path = self.path.clone();
+        let sql = |source| StoreError::Sqlite { path: path.clone(), source };
+        let tx = self.conn.transaction().map_err(sql)?;
+        let row = |table: &str| -> rusqlite::Result<Option<Vec<rusqlite::types::Value>>> {
+            let query = format!("SELECT {COLUMNS} FROM {table} WHERE pair_id = ?1");
+            tx.query_row(&query, [pair as i64], |r| (0..9).map(|i| r.get(i)).collect()).optional()
+        };
+        let in_use: Option<bool> = tx
+            .query_row("SELECT in_use FROM revisit_confident_geometries WHERE pair_id = ?1", [pair as i64], |r| {
+                r.get(0)
+            })
             .optional()
+            .map_err(sql)?;
+        let (Some(in_use), Some(seen), Some(kept)) =
+            (in_use, row("two_view_geometries").map_err(sql)?, row("revisit_confident_geometries").map_err(sql)?)
+        else {
+            return Ok(false);
+        };
+        if in_use == yes {
+            return Ok(false);
+        }
+        let update = |table: &str, values: Vec<rusqlite::types::Value>| -> rusqlite::Result<usize> {
+            let set = "rows = ?2, cols = ?3, data = ?4, config = ?5, F = ?6, E = ?7, H = ?8, qvec = ?9, tvec = ?10";
+            let mut values: Vec<rusqlite::types::Value> = values;
+            values.insert(0, rusqlite::types::Value::Integer(pair as i64));
+            tx.execute(&format!("UPDATE {table} SET {set} WHERE pair_id = ?1"), rusqlite::params_from_iter(values))
+        };
+        update("two_view_geometries", kept).map_err(sql)?;
+        update("revisit_confident_geometries", seen).map_err(sql)?;
+        tx.execute("UPDATE revisit_confident_geometries SET in_use = ?2 WHERE pair_id = ?1", params![pair as i64, yes])
+            .map_err(sql)?;
+        tx.commit().map_err(sql)?;
+        Ok(true)
+    }
+
+    /// The confident pairs whose confident geometry COLMAP reads ([`Store::use_confident`]).
+    pub fn confident_in_use(&self) -> Result<BTreeSet<u64>> {
+        let mut stmt = self
+            .conn
+            .prepare("SELECT pair_id FROM revisit_confident_geometries WHERE in_use = 1")
             .map_err(|e| self.sql(e))?;
-        let values = blob::to_u32s(&data.flatten().unwrap_or_default())
+        let rows = stmt.query_map([], |r| Ok(r.get::<_, i64>(0)? as u64)).map_err(|e| self.sql(e))?;
+        rows.collect::<std::result::Result<_, _>>().map_err(|e| self.sql(e))
+    }
+
+    /// The pairs stored with a confident geometry (`revisit_matching::cross`'s rule).
+    pub fn confident_pairs(&self) -> Result<BTreeSet<u64>> {
+        let mut stmt =
+            self.conn.prepare("SELECT pair_id FROM revisit_confident_geometries").map_err(|e| self.sql(e))?;
+        let rows = stmt.query_map([], |r| Ok(r.get::<_, i64>(0)? as u64)).map_err(|e| self.sql(e))?;
+        rows.collect::<std::result::Result<_, _>>().map_err(|e| self.sql(e))
+    }
+
+    /// The verified inlier matches of a pair, indexed (smaller id, larger id),
+    /// whether COLMAP sees them, its confident ones ([`Store::use_confident`]) or
+    /// none (set aside).
+    pub fn verified_matches(&self, pair: u64) -> Result<Vec<[u32; 2]>> {
+        let kept_aside = |query: &str| -> Result<Option<Option<Vec<u8>>>> {
+            self.conn.query_row(query, [pair as i64], |r| r.get(0)).optional().map_err(|e| self.sql(e))
+        };
+        let data = match kept_aside("SELECT data FROM revisit_confident_geometries WHERE pair_id = ?1 AND in_use = 1")?
+        {
+            Some(data) => data,
+            None => match kept_aside("SELECT data FROM revisit_set_aside WHERE pair_id = ?1")? {
+                Some(data) => data,
+                None => return Ok(self.two_view_geometry(pair)?.map(|(_, matches)| matches).unwrap_or_default()),
+            },
+        };
+        let values = blob::to_u32s(&data.unwrap_or_default())
             .ok_or_else(|| self.corrupt(format!("set-aside geometry of pair {pair}"), "blob length"))?;
         Ok(values.chunks_exact(2).map(|c| [c[0], c[1]]).collect())
     }
@@ -489,39 +552,22 @@ impl Store {
     }
 }
 
-/// Writes a pair's matches, two-view geometry and record inside `tx`.
+/// Writes a pair's matches, two-view geometry (and its confident geometry, if any) and record
+/// inside `tx`.
 fn insert_pair(
     tx: &rusqlite::Transaction<'_>,
     record: &PairRecord,
     matches: &[[u32; 2]],
     geometry: &TwoViewGeometry,
+    confident: Option<&TwoViewGeometry>,
 ) -> rusqlite::Result<()> {
     let id = pair_id(record.image_id1, record.image_id2);
     let swapped = record.image_id1 > record.image_id2;
-    let ordered =
-        |m: &[[u32; 2]]| -> Vec<u32> { m.iter().flat_map(|&[a, b]| if swapped { [b, a] } else { [a, b] }).collect() };
-    let transpose = |m: &nalgebra::Matrix3<f64>| if swapped { m.transpose() } else { *m };
-    let matrix = |m: Option<nalgebra::Matrix3<f64>>| m.map(|m| blob::matrix_row_major(&transpose(&m)));
-    let pose = geometry.cam2_from_cam1.map(|p| if swapped { p.inverse() } else { p });
     tx.execute(
         "INSERT OR REPLACE INTO matches (pair_id, rows, cols, data) VALUES (?1, ?2, 2, ?3)",
-        params![id as i64, matches.len() as i64, blob::u32s(&ordered(matches))],
+        params![id as i64, matches.len() as i64, blob::u32s(&ordered(matches, swapped))],
     )?;
-    tx.execute(
-        "INSERT OR REPLACE INTO two_view_geometries (pair_id, rows, cols, data, config, F, E, H, qvec, tvec) \
-         VALUES (?1, ?2, 2, ?3, ?4, ?5, ?6, ?7, ?8, ?9)",
-        params![
-            id as i64,
-            geometry.inlier_matches.len() as i64,
-            blob::u32s(&ordered(&geometry.inlier_matches)),
-            geometry.config as i32,
-            matrix(geometry.f),
-            matrix(geometry.e),
-            matrix(geometry.h),
-            pose.map(|p| blob::f64s(&p.wxyz())),
-            pose.map(|p| blob::f64s(p.translation.as_slice())),
-        ],
-    )?;
+    insert_geometry(tx, "two_view_geometries", id, swapped, geometry)?;
     // A pair matched again is judged afresh.
     tx.execute("DELETE FROM revisit_set_aside WHERE pair_id = ?1", [id as i64])?;
     tx.execute(
@@ -545,7 +591,48 @@ fn insert_pair(
             params![id as i64, predicted],
         )?;
     }
+    tx.execute("DELETE FROM revisit_confident_geometries WHERE pair_id = ?1", [id as i64])?;
+    if let Some(confident) = confident {
+        insert_geometry(tx, "revisit_confident_geometries", id, swapped, confident)?;
+    }
     Ok(())
+}
+
+/// Match index pairs flattened, (image 1, image 2) swapped when `swapped` (COLMAP keeps a pair by
+/// its smaller image id first).
+fn ordered(matches: &[[u32; 2]], swapped: bool) -> Vec<u32> {
+    matches.iter().flat_map(|&[a, b]| if swapped { [b, a] } else { [a, b] }).collect()
+}
+
+/// Writes `geometry` of pair `id` into `table` (COLMAP's `two_view_geometries` or a table of its
+/// columns), seen from the smaller image id when `swapped`.
+fn insert_geometry(
+    tx: &rusqlite::Transaction<'_>,
+    table: &str,
+    id: u64,
+    swapped: bool,
+    geometry: &TwoViewGeometry,
+) -> rusqlite::Result<usize> {
+    let transpose = |m: &nalgebra::Matrix3<f64>| if swapped { m.transpose() } else { *m };
+    let matrix = |m: Option<nalgebra::Matrix3<f64>>| m.map(|m| blob::matrix_row_major(&transpose(&m)));
+    let pose = geometry.cam2_from_cam1.map(|p| if swapped { p.inverse() } else { p });
+    tx.execute(
+        &format!(
+            "INSERT OR REPLACE INTO {table} (pair_id, rows, cols, data, config, F, E, H, qvec, tvec) \
+             VALUES (?1, ?2, 2, ?3, ?4, ?5, ?6, ?7, ?8, ?9)"
+        ),
+        params![
+            id as i64,
+            geometry.inlier_matches.len() as i64,
+            blob::u32s(&ordered(&geometry.inlier_matches, swapped)),
+            geometry.config as i32,
+            matrix(geometry.f),
+            matrix(geometry.e),
+            matrix(geometry.h),
+            pose.map(|p| blob::f64s(&p.wxyz())),
+            pose.map(|p| blob::f64s(p.translation.as_slice())),
+        ],
+    )
 }
 
 /// A row or match count as stored (SQLite integers are i64).

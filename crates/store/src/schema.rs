@@ -79,6 +79,18 @@ CREATE TABLE IF NOT EXISTS revisit_pairs (
 CREATE TABLE IF NOT EXISTS revisit_roll_predictions (
     pair_id INTEGER PRIMARY KEY NOT NULL,
     predicted_roll_deg INTEGER NOT NULL);
+CREATE TABLE IF NOT EXISTS revisit_confident_geometries (
+    pair_id INTEGER PRIMARY KEY NOT NULL,
+    rows INTEGER NOT NULL,
+    cols INTEGER NOT NULL,
+    data BLOB,
+    config INTEGER NOT NULL,
+    F BLOB,
+    E BLOB,
+    H BLOB,
+    qvec BLOB,
+    tvec BLOB,
+    in_use INTEGER NOT NULL DEFAULT 0);
 CREATE TABLE IF NOT EXISTS revisit_set_aside (
     pair_id INTEGER PRIMARY KEY NOT NULL,
     reason TEXT NOT NULL,

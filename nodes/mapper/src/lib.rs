@@ -90,7 +90,7 @@ enum Entry {
         image: String,
         candidates: Vec<String>,
     },
-    Found(CrossVisitMatches),
+    Found(Box<CrossVisitMatches>),
     Mapped {
         session: String,
     },
@@ -137,7 +137,7 @@ impl Inputs {
             }
             Entry::Found(found) => {
                 let key = (full(&found.session1, &found.image_name1), full(&found.session2, &found.image_name2));
-                self.found.insert(key, found);
+                self.found.insert(key, *found);
             }
             Entry::Mapped { session } => {
                 self.mapped.insert(session);
@@ -259,7 +259,7 @@ pub async fn run(node: &mut Node) -> Result<Summary, NodeError> {
                 let candidates = message.candidates.iter().map(|c| full(&c.session, &c.image_name)).collect();
                 mapper.record(Entry::Candidates { image, candidates })
             }
-            Some(Ok((message, _))) = found.next() => mapper.record(Entry::Found(message)),
+            Some(Ok((message, _))) = found.next() => mapper.record(Entry::Found(Box::new(message))),
             _ = tf_tick.tick() => {
                 if let Some(transform) = &out.map_to_odom {
                     let mut transform = transform.clone();

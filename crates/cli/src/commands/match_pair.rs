@@ -132,8 +132,16 @@ pub fn run(args: Args) -> Result<()> {
             for (roll, inliers) in &pair.inliers_by_roll {
                 tracing::info!("roll {:>3}: {inliers} inliers", roll.degrees());
             }
-            if !pair.accepted() {
-                println!("rejected: the roll does not stand out, or fewer than {} inliers", options.verify.min_inliers);
+            let p = options.confident_probability;
+            match (pair.accepted(), &pair.confident) {
+                (false, _) => println!(
+                    "rejected: the roll does not stand out, or fewer than {} inliers",
+                    options.verify.min_inliers
+                ),
+                (true, Some((sure, _))) => {
+                    println!("confident: {} inliers above probability {p} verify alone", sure.len())
+                }
+                (true, None) => println!("weak: its matches above probability {p} do not verify alone"),
             }
             let at = |side: usize, key: CrossKey| match key {
                 CrossKey::Learned(l) => pair.positions[side].get(l as usize).copied(),

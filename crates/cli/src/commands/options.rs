@@ -142,9 +142,25 @@ pub struct OptionArgs {
     /// few pixels off, they verify and make about half the cross-visit pairs
     /// wrong at strong change. 0.5 keeps far fewer wrong pairs and places the
     /// visits better where change is in appearance, but can leave too few right
-    /// pairs where corals moved (a storm).
+    /// pairs where corals moved (a storm): --confident-probability and
+    /// --confident-pairs use the more probable matches where there are enough.
     #[arg(long, default_value_t = revisit_matching::cross::DEFAULT_MIN_MATCH_PROBABILITY, value_name = "P")]
     min_match_probability: f32,
+    /// A verified cross-visit pair is confident when its matches more probable
+    /// than P verify on their own (the store keeps their inliers beside the
+    /// pair's); the others are weak. See --confident-pairs.
+    #[arg(long, default_value_t = revisit_matching::cross::DEFAULT_CONFIDENT_PROBABILITY, value_name = "P")]
+    confident_probability: f32,
+    /// Map two visits with at least N confident cross-visit pairs on those
+    /// alone, each on its confident inliers, and set their weak pairs aside
+    /// (their inliers hold the matches LightGlue was unsure of: on changed
+    /// surfaces, a few pixels off). Two visits with fewer keep every pair.
+    /// For change in appearance (light, turbidity, bleaching, renewed sand):
+    /// the demo survey goes from 0.98 to 0.52 px with N = 8. Not where corals
+    /// grew or moved: LightGlue is sure of them, and the pairs kept are wrong.
+    /// Decided afresh at every run (nothing is matched again). Default: off.
+    #[arg(long, value_name = "N")]
+    confident_pairs: Option<usize>,
     /// Fewest verified inliers of a learned (cross-visit) pair.
     #[arg(long, default_value_t = revisit_matching::CROSS_MIN_INLIERS, value_name = "N")]
     cross_min_inliers: usize,
@@ -286,6 +302,8 @@ impl OptionArgs {
         };
         cross.roll_margin = self.roll_margin;
         cross.min_match_probability = self.min_match_probability;
+        cross.confident_probability = self.confident_probability;
+        cross.confident_pairs = self.confident_pairs;
         cross.anchor_radius_px = self.anchor_radius;
         cross.verify.min_inliers = self.cross_min_inliers;
         cross.verify.max_error_px = self.cross_max_error;

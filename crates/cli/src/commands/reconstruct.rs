@@ -194,12 +194,19 @@ fn print_summary(report: &Report, work: &Path) {
             m.done, m.matcher_runs
         );
     }
+    if let Some(c) = report.cross.consistency.filter(|c| c.confident + c.weak > 0) {
+        println!(
+            "confident cross pairs: {} (mapped on their matches above --confident-probability); weak pairs set aside: \
+             {} (between visits with at least --confident-pairs confident ones)",
+            c.confident, c.weak
+        );
+    }
     if let Some(c) = report.cross.consistency.filter(|c| c.inconsistent() > 0) {
         let fate = match c.set_aside {
             0 => "mapped all the same (--set-aside-inconsistent sets them aside)".to_owned(),
             n if n == c.inconsistent() => "set aside, not mapped".to_owned(),
             n => format!(
-                "{n} set aside (unlinked, or off the navigation when change-aware), the others mapped all the same"
+                "{n} set aside (unlinked, weak, or off the navigation when change-aware), the others mapped all the same"
             ),
         };
         println!(
