@@ -385,6 +385,9 @@ def place_visits(pairs, visits, navigation, seed):
     placed = {visits[0]: (1.0, np.eye(3), np.zeros(3))}
     for visit in visits[1:]:
         keys = [(u, visit) for u in placed if (u, visit) in pairs]
+        if not keys:
+            log(f"{visit} not placed: no cross-visit match with a placed visit")
+            continue
 
         def relative(key, placement):
             return compose(inverse(placed[key[0]]), placement)

@@ -36,7 +36,8 @@
 //!    navigation puts it than 3 standard deviations of the two positions (at
 //!    least 64 pixels' worth) is off the navigation. Wrong pairs of a
 //!    planar seabed pass rules 1 and 2 when they happen to turn right; they
-//!    rarely also move right.
+//!    rarely also move right. When most of two visits' pairs are off, it is
+//!    the navigation that is (a visit's position fix): none of them is.
 //! 4. **The loops close** (no navigation needed): a cross-visit pair, another
 //!    one near it, and the two visits' own pairs between their images make a
 //!    loop of [`Similarity`]s that must come back to where it started. Right
@@ -417,7 +418,9 @@ pub const UNLINKED_MIN_INLIERS: usize = 45;
 /// place in the order of visits); an image without one is not checked.
 /// `navigation` holds the images with a navigated position (rule 3; none:
 /// not checked). A pair off the navigation is said so whatever the other rules
-/// say: navigation is evidence from outside the images. The pairs all three
+/// say: navigation is evidence from outside the images; unless most of its two
+/// visits' checked pairs are off too, which is the navigation off (a visit's
+/// position fix), not the pairs. The pairs all three
 /// rules pass then close loops with each other (rule 4;
 /// `loop_tolerance` 0: not checked). Of the searched pairs no loop
 /// confirms, those between visits with no clear offset and with fewer than
@@ -443,9 +446,19 @@ pub fn check_cross_pairs(
         }
     }
     let footings = footings(pairs, visit_of, &navigation.positions);
+    // Each checked cross-visit pair's miss, by the two visits it joins.
+    let mut misses: BTreeMap<(usize, usize), Vec<(usize, f64, f64)>> = BTreeMap::new();
     for (index, pair) in pairs.iter().enumerate().filter(|(_, p)| p.kind == PairKind::Cross) {
         let Some((miss_m, tolerance_m)) = navigation_miss(pair, &footings, visit_of, navigation) else { continue };
-        if miss_m > tolerance_m {
+        let (Some(&v1), Some(&v2)) = (visit_of.get(&pair.image_id1), visit_of.get(&pair.image_id2)) else { continue };
+        misses.entry((v1.min(v2), v1.max(v2))).or_default().push((index, miss_m, tolerance_m));
+    }
+    for checked in misses.values() {
+        let off: Vec<&(usize, f64, f64)> = checked.iter().filter(|(_, miss, tolerance)| miss > tolerance).collect();
+        if navigation_is_off(checked, &off) {
+            continue;
+        }
+        for &&(index, miss_m, tolerance_m) in &off {
             let verdict = Verdict::OffNavigation { miss_m, tolerance_m };
             match verdicts.iter_mut().find(|(i, _)| *i == index) {
                 Some(v) => v.1 = verdict,
@@ -726,6 +739,23 @@ fn navigation_miss(
     };
     let (miss_m, floor_m) = footings.iter().filter_map(worst).min_by(|a, b| a.0.total_cmp(&b.0))?;
     Some((miss_m, (navigation.tolerance_sigmas * n1.sigma_m.hypot(n2.sigma_m)).max(floor_m)))
+}
+
+/// Whether the pairs of two visits that are off their navigation (`off`, of
+/// all the pairs `checked`, each `(index, miss_m, tolerance_m)`) show the
+/// navigation off rather than themselves: most of them are off, and by about
+/// the same distance (the middle half of their misses within one tolerance),
+/// as when one visit's position fix is off. Wrong pairs miss each by its own
+/// distance.
+fn navigation_is_off(checked: &[(usize, f64, f64)], off: &[&(usize, f64, f64)]) -> bool {
+    if 2 * off.len() <= checked.len() {
+        return false;
+    }
+    let mut misses: Vec<f64> = off.iter().map(|o| o.1).collect();
+    misses.sort_by(f64::total_cmp);
+    let quartile = |q: usize| misses[(q * (misses.len() - 1)) / 4];
+    let tolerance = median(off.iter().map(|o| o.2).collect());
+    quartile(3) - quartile(1) < tolerance
 }
 
 /// Matches a model triangulated on fewer than this many points of a pair do
@@ -1233,6 +1263,38 @@ mod tests {
             let verdicts = check_cross_pairs(&pairs, &visit_of, DEFAULT_CONSISTENCY_TOLERANCE_DEG, &navigation, LOOPS);
             assert!(verdicts.iter().all(|v| !matches!(v.1, Verdict::OffNavigation { .. })), "{verdicts:?}");
         }
+    }
+
+    #[test]
+    fn a_visit_whose_navigation_is_off_keeps_its_pairs() {
+        let (pairs, visit_of, mut navigation) = navigated_visits(false, true);
+        // The second visit's position fix 1 m off: every pair between the visits misses by about it.
+        for (id, navigated) in navigation.positions.iter_mut() {
+            if visit_of[id] == 1 {
+                navigated.xy_m[1] += 1.0;
+            }
+        }
+        let verdicts = check_cross_pairs(&pairs, &visit_of, DEFAULT_CONSISTENCY_TOLERANCE_DEG, &navigation, 0.0);
+        assert!(verdicts.iter().all(|v| !matches!(v.1, Verdict::OffNavigation { .. })), "{verdicts:?}");
+    }
+
+    #[test]
+    fn wrong_pairs_stay_off_the_navigation_even_when_they_are_most_pairs() {
+        let (mut pairs, visit_of, navigation) = navigated_visits(false, true);
+        // Three more wrong pairs, each matched a different distance off.
+        let wrong = pairs.last().unwrap().clone();
+        for k in 1..=3 {
+            let mut more = wrong.clone();
+            more.image_id1 = 1 + k;
+            if let Some(motion) = &mut more.motion {
+                motion.similarity.move_px[0] += 150.0 * k as f64;
+            }
+            pairs.push(more);
+        }
+        let verdicts = check_cross_pairs(&pairs, &visit_of, DEFAULT_CONSISTENCY_TOLERANCE_DEG, &navigation, 0.0);
+        let off: Vec<usize> =
+            verdicts.iter().filter(|v| matches!(v.1, Verdict::OffNavigation { .. })).map(|v| v.0).collect();
+        assert_eq!(off, vec![13, 14, 15, 16], "{verdicts:?}");
     }
 
     #[test]
