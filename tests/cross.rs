@@ -44,12 +44,10 @@ fn strong_change_links_with_place_recognition_and_roll_search() {
     run_ok(&[&synth[..], &["--change", "strong", "--seed", "0"]].concat());
     let three = ["s1", "s2", "s3"];
 
-    // The method: place recognition picks the pairs, ALIKED + LightGlue with roll search matches them;
-    // first mapped in one plain joint solve, which extends its model when a visit is added.
+    // The method: place recognition picks the pairs, ALIKED + LightGlue with roll search matches them.
     let vpr = dir.path().join("vpr");
     let two = ["s1", "s2"];
-    let plain = ["--change-aware", "false"];
-    let report = reconstruct(&reef, &two, &vpr, &plain);
+    let report = reconstruct(&reef, &two, &vpr, &[]);
     assert_eq!(report["models"], 1, "{report:#}");
     assert_eq!(fully_registered(&report), two, "{report:#}");
     let error = cross_error_px(&reef, &two, &vpr).expect("clicks scored");
@@ -64,7 +62,7 @@ fn strong_change_links_with_place_recognition_and_roll_search() {
     // extended. Its pairs are matched at the roll the verified pairs predict (the first few
     // searched).
     let before = report;
-    let report = reconstruct(&reef, &three, &vpr, &plain);
+    let report = reconstruct(&reef, &three, &vpr, &[]);
     assert_eq!(report["features"]["done"], IMAGES, "{report:#}");
     assert_eq!(report["features"]["reused"], 2 * IMAGES);
     // Learned features: roll 0 for the first visit, four rolls for later ones.
@@ -121,7 +119,7 @@ fn strong_change_links_with_place_recognition_and_roll_search() {
     // asked to, it maps without them (nothing else is redone).
     let nav = common::nav_args(&reef, &three);
     let nav: Vec<&str> = nav.iter().map(String::as_str).collect();
-    let report = reconstruct(&reef, &three, &vpr, &[&["--set-aside-inconsistent"], &plain[..], &nav[..]].concat());
+    let report = reconstruct(&reef, &three, &vpr, &[&["--set-aside-inconsistent"], &nav[..]].concat());
     let consistency = &report["cross"]["consistency"];
     let count = |key: &str| consistency[key].as_u64().unwrap();
     let inconsistent = count("roll_disagrees") + count("off_consensus") + count("off_navigation") + count("off_loops");
@@ -146,11 +144,11 @@ fn strong_change_links_with_place_recognition_and_roll_search() {
         assert_eq!(report["mapping"]["extended"], false, "{report:#}");
     }
 
-    // Change-aware mapping, the default, on the same store (nothing is matched again): every visit
-    // mapped alone and placed by its cross-visit matches' consensus, one joint model over the
-    // matches that hold, each visit pair's kept and dropped matches reported; against the plain
-    // joint solve of the three visits above.
-    let report = reconstruct(&reef, &three, &vpr, &nav);
+    // Change-aware mapping on the same store (nothing is matched again): every visit mapped
+    // alone and placed by its cross-visit matches' consensus, one joint model over the matches
+    // that hold, each visit pair's kept and dropped matches reported; against the plain joint
+    // solve of the three visits above.
+    let report = reconstruct(&reef, &three, &vpr, &[&["--change-aware"], &nav[..]].concat());
     assert_eq!(report["cross"]["learned_matching"]["done"], 0, "{report:#}");
     // Without being asked, only the pairs off the navigation stay aside.
     let consistency = &report["cross"]["consistency"];

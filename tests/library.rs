@@ -19,6 +19,9 @@ fn comparable(mut report: Report, work: &Path) -> Report {
     // Time and memory are measured, not computed: they differ from run to run.
     report.seconds.clear();
     report.peak_rss_mib.clear();
+    if let Some(change_aware) = &mut report.mapping.change_aware {
+        change_aware.seconds = 0.0;
+    }
     report.chosen_model = report.chosen_model.map(|m| m.strip_prefix(work).unwrap().to_path_buf());
     report
 }

@@ -191,7 +191,7 @@ fn a_storm_change_map_finds_the_corals_it_moved_or_removed() {
     run_ok(&[&synth[..], &["--seed", "5"]].concat());
     let nav = common::nav_args(&reef, &["s1", "s2"]);
     let nav: Vec<&str> = nav.iter().map(String::as_str).collect();
-    let report = common::reconstruct(&reef, &["s1", "s2"], &work, &nav);
+    let report = common::reconstruct(&reef, &["s1", "s2"], &work, &[&["--change-aware"], &nav[..]].concat());
     assert_eq!(report["models"], 1, "{report:#}");
 
     let truth_s = reef.join("truth").display().to_string();
@@ -212,7 +212,7 @@ fn a_storm_change_map_finds_the_corals_it_moved_or_removed() {
 
 /// A year of coral growth between two visits (strong change: the sand renewed, so most
 /// cross-visit matches fall on corals that grew): the plain joint solve bends one visit onto the
-/// grown corals, change-aware mapping (the default) with the visits' navigation places the second visit by the
+/// grown corals, change-aware mapping with the visits' navigation places the second visit by the
 /// structure that held and keeps both visits in one model, several times nearer the truth (3.9
 /// px against 9.7 px; 15 px when a grown coral's many matches outvoted the rest).
 #[test]
@@ -224,10 +224,10 @@ fn change_aware_mapping_holds_through_a_year_of_growth() {
     run_ok(&[&synth[..], &["--seed", "3", "--growth", "yearly"]].concat());
     let nav = common::nav_args(&reef, &["s1", "s2"]);
     let nav: Vec<&str> = nav.iter().map(String::as_str).collect();
-    common::reconstruct(&reef, &["s1", "s2"], &work, &[&["--change-aware", "false"], &nav[..]].concat());
+    common::reconstruct(&reef, &["s1", "s2"], &work, &nav);
     let plain_px = common::cross_error_px(&reef, &["s1", "s2"], &work).expect("clicks scored");
 
-    let report = common::reconstruct(&reef, &["s1", "s2"], &work, &nav);
+    let report = common::reconstruct(&reef, &["s1", "s2"], &work, &[&["--change-aware"], &nav[..]].concat());
     assert_eq!(report["features"]["done"], 0, "only mapping runs again: {report:#}");
     assert_eq!(report["models"], 1, "{report:#}");
     assert_eq!(common::fully_registered(&report), ["s1", "s2"], "{report:#}");

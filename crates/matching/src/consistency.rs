@@ -447,18 +447,18 @@ pub fn check_cross_pairs(
     }
     let footings = footings(pairs, visit_of, &navigation.positions);
     // Each checked cross-visit pair's miss, by the two visits it joins.
-    let mut misses: BTreeMap<(usize, usize), Vec<(usize, f64, f64)>> = BTreeMap::new();
+    let mut misses: BTreeMap<(usize, usize), Vec<Miss>> = BTreeMap::new();
     for (index, pair) in pairs.iter().enumerate().filter(|(_, p)| p.kind == PairKind::Cross) {
         let Some((miss_m, tolerance_m)) = navigation_miss(pair, &footings, visit_of, navigation) else { continue };
         let (Some(&v1), Some(&v2)) = (visit_of.get(&pair.image_id1), visit_of.get(&pair.image_id2)) else { continue };
-        misses.entry((v1.min(v2), v1.max(v2))).or_default().push((index, miss_m, tolerance_m));
+        misses.entry((v1.min(v2), v1.max(v2))).or_default().push(Miss { index, miss_m, tolerance_m });
     }
     for checked in misses.values() {
-        let off: Vec<&(usize, f64, f64)> = checked.iter().filter(|(_, miss, tolerance)| miss > tolerance).collect();
+        let off: Vec<&Miss> = checked.iter().filter(|m| m.miss_m > m.tolerance_m).collect();
         if navigation_is_off(checked, &off) {
             continue;
         }
-        for &&(index, miss_m, tolerance_m) in &off {
+        for &&Miss { index, miss_m, tolerance_m } in &off {
             let verdict = Verdict::OffNavigation { miss_m, tolerance_m };
             match verdicts.iter_mut().find(|(i, _)| *i == index) {
                 Some(v) => v.1 = verdict,
@@ -741,20 +741,28 @@ fn navigation_miss(
     Some((miss_m, (navigation.tolerance_sigmas * n1.sigma_m.hypot(n2.sigma_m)).max(floor_m)))
 }
 
+/// How far a cross-visit pair (by its index) puts the other camera from its
+/// navigated position, and how far it may.
+#[derive(Clone, Copy, Debug)]
+struct Miss {
+    index: usize,
+    miss_m: f64,
+    tolerance_m: f64,
+}
+
 /// Whether the pairs of two visits that are off their navigation (`off`, of
-/// all the pairs `checked`, each `(index, miss_m, tolerance_m)`) show the
-/// navigation off rather than themselves: most of them are off, and by about
-/// the same distance (the middle half of their misses within one tolerance),
-/// as when one visit's position fix is off. Wrong pairs miss each by its own
-/// distance.
-fn navigation_is_off(checked: &[(usize, f64, f64)], off: &[&(usize, f64, f64)]) -> bool {
+/// all the pairs `checked`) show the navigation off rather than themselves:
+/// most of them are off, and by about the same distance (the middle half of
+/// their misses within one tolerance), as when one visit's position fix is
+/// off. Wrong pairs miss each by its own distance.
+fn navigation_is_off(checked: &[Miss], off: &[&Miss]) -> bool {
     if 2 * off.len() <= checked.len() {
         return false;
     }
-    let mut misses: Vec<f64> = off.iter().map(|o| o.1).collect();
+    let mut misses: Vec<f64> = off.iter().map(|o| o.miss_m).collect();
     misses.sort_by(f64::total_cmp);
     let quartile = |q: usize| misses[(q * (misses.len() - 1)) / 4];
-    let tolerance = median(off.iter().map(|o| o.2).collect());
+    let tolerance = median(off.iter().map(|o| o.tolerance_m).collect());
     quartile(3) - quartile(1) < tolerance
 }
 
@@ -1282,9 +1290,9 @@ mod tests {
     fn wrong_pairs_stay_off_the_navigation_even_when_they_are_most_pairs() {
         let (mut pairs, visit_of, navigation) = navigated_visits(false, true);
         // Three more wrong pairs, each matched a different distance off.
-        let wrong = pairs.last().unwrap().clone();
+        let wrong = *pairs.last().unwrap();
         for k in 1..=3 {
-            let mut more = wrong.clone();
+            let mut more = wrong;
             more.image_id1 = 1 + k;
             if let Some(motion) = &mut more.motion {
                 motion.similarity.move_px[0] += 150.0 * k as f64;

@@ -181,15 +181,15 @@ pub struct OptionArgs {
     #[arg(long, default_value_t = revisit_matching::DEFAULT_CONSISTENCY_TOLERANCE_DEG, value_name = "DEG")]
     consistency_tolerance: f64,
     /// Set inconsistent cross-visit pairs aside (not mapped) instead of only
-    /// reporting them (change-aware mapping, the default, sets those off the
-    /// navigation aside without it).
+    /// reporting them (with --change-aware, those off the navigation are set
+    /// aside without it).
     #[arg(long)]
     set_aside_inconsistent: bool,
     /// With navigation priors (--nav, --nav-topic), a verified cross-visit pair
     /// whose matches put the other camera farther from its navigated position
     /// than SIGMAS standard deviations of the two positions (at least 64
     /// pixels' worth) is inconsistent, and set aside when mapping
-    /// change-aware (the default): two images of different places can match coherently on
+    /// --change-aware: two images of different places can match coherently on
     /// a near-flat seabed, and navigation tells them apart. Each visit's own
     /// pairs calibrate how its navigation maps to its pixels (scale, headings,
     /// ENU or NED). When most pairs of two visits miss by about the same
@@ -262,12 +262,10 @@ pub struct OptionArgs {
     /// placements and bundle-adjust them jointly, so that matches on
     /// structure that changed (a coral that grew) or wrong pairs do not bend
     /// whole visits. report.json says, per visit pair, how many cross-visit
-    /// matches were kept and dropped. Maps afresh on every run. On by
-    /// default with the incremental mapper; `--change-aware false` puts every
-    /// match into one plain joint solve instead (which extends the previous
-    /// model when images are added). The global mapper maps plain only.
-    #[arg(long, value_name = "BOOL", num_args = 0..=1, default_missing_value = "true")]
-    change_aware: Option<bool>,
+    /// matches were kept and dropped. Incremental mapper only; maps afresh
+    /// on every run.
+    #[arg(long)]
+    change_aware: bool,
     /// COLMAP's threads; -1 = all cores. More threads map faster, but the
     /// poses then differ in their last digits from run to run.
     #[arg(long, default_value_t = 1, value_name = "N", allow_negative_numbers = true)]
@@ -329,7 +327,7 @@ impl OptionArgs {
             MapperArg::Global => Engine::Global,
         };
         options.mapper.threads = self.mapper_threads;
-        options.mapper.change_aware = self.change_aware.unwrap_or(options.mapper.engine == Engine::Incremental);
+        options.mapper.change_aware = self.change_aware;
         options.ply_colors = match self.ply_colors {
             PlyColorsArg::Rgb => PlyColors::Rgb,
             PlyColorsArg::Session => PlyColors::BySession,

@@ -53,8 +53,8 @@ enum Method {
     Posthoc(Alignment),
 }
 
-/// The joint method whose matches the other methods of the same matching
-/// (`revisit-nav` and the plain solves) reuse when it ran first.
+/// The joint method whose matches `revisit-nav` and the change-aware methods reuse when it ran
+/// first.
 const REVISIT: &str = "revisit";
 
 const METHODS: [Method; 10] = [
@@ -63,41 +63,41 @@ const METHODS: [Method; 10] = [
         cross: CrossStrategy::Vpr,
         roll_search: None,
         navigation: false,
-        change_aware: true,
-        about: "joint: place recognition + learned matching with roll search, change-aware mapping (Revisit's \
-                default)",
+        change_aware: false,
+        about: "joint: place recognition + learned matching with roll search (Revisit's default)",
     },
     Method::Joint {
         name: "revisit-nav",
         cross: CrossStrategy::Vpr,
         roll_search: None,
         navigation: true,
-        change_aware: true,
-        about: "joint, with each visit's navigation as pose priors (reconstruct --nav): placements gated by it, \
-                model placed on it; the matches of revisit when it ran first (only mapping is timed then)",
+        change_aware: false,
+        about: "joint, with each visit's navigation as pose priors (reconstruct --nav); the matches of \
+                revisit when it ran first (only mapping is timed then)",
     },
     Method::Joint {
-        name: "revisit-plain",
+        name: "revisit-change-aware",
         cross: CrossStrategy::Vpr,
         roll_search: None,
         navigation: false,
-        change_aware: false,
-        about: "joint, one plain solve (reconstruct --change-aware false): every verified match in one incremental \
-                COLMAP solve; the matches of revisit when it ran first",
+        change_aware: true,
+        about: "joint, change-aware mapping (reconstruct --change-aware): each visit mapped alone, placed by its \
+                cross-visit matches' consensus, solved jointly on the matches that hold; the matches of revisit \
+                when it ran first",
     },
     Method::Joint {
-        name: "revisit-nav-plain",
+        name: "revisit-nav-change-aware",
         cross: CrossStrategy::Vpr,
         roll_search: None,
         navigation: true,
-        change_aware: false,
-        about: "joint, one plain solve with each visit's navigation as pose priors; the matches of revisit when it \
-                ran first",
+        change_aware: true,
+        about: "joint, change-aware mapping with each visit's navigation (placements gated by it, model placed on \
+                it); the matches of revisit when it ran first",
     },
     Method::Joint {
         name: "joint-sift",
         navigation: false,
-        change_aware: true,
+        change_aware: false,
         cross: CrossStrategy::Sift,
         roll_search: None,
         about: "joint: SIFT on every cross-visit pair",
@@ -105,7 +105,7 @@ const METHODS: [Method; 10] = [
     Method::Joint {
         name: "no-roll-search",
         navigation: false,
-        change_aware: true,
+        change_aware: false,
         cross: CrossStrategy::Vpr,
         roll_search: Some(RollSearch::Off),
         about: "joint, ablation: Revisit's default matching at roll 0 only",
@@ -113,7 +113,7 @@ const METHODS: [Method; 10] = [
     Method::Joint {
         name: "no-places",
         navigation: false,
-        change_aware: true,
+        change_aware: false,
         cross: CrossStrategy::LearnedCross,
         roll_search: None,
         about: "joint, ablation: the learned matcher on every cross-visit pair, no place recognition",
@@ -311,7 +311,7 @@ pub fn run(args: Args) -> Result<()> {
                     },
                 };
                 let dir = work.join(name);
-                if name != REVISIT && cross == CrossStrategy::Vpr && roll_search.is_none() {
+                if navigation.is_some() || change_aware {
                     start_from_store(&work.join(REVISIT), &dir)?;
                 }
                 let started = Instant::now();
