@@ -120,8 +120,8 @@ pub struct MapperOptions {
     /// are left out instead of bending whole visits. Maps afresh every time
     /// (never extends). Default off: on every survey measured it was as
     /// accurate as the plain solve or more, but its placement costs grow
-    /// with the cross-visit matches: 161 s against 8 s of mapping on an
-    /// unchanged 3 x 16 survey (74k matches), minutes on 3 x 40 (README).
+    /// with the cross-visit matches: 57 s against 8 s of mapping on an
+    /// unchanged 3 x 16 survey (74k matches; README).
     pub change_aware: bool,
 }
 
