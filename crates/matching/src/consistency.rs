@@ -36,8 +36,9 @@
 //!    navigation puts it than 3 standard deviations of the two positions (at
 //!    least 64 pixels' worth) is off the navigation. Wrong pairs of a
 //!    planar seabed pass rules 1 and 2 when they happen to turn right; they
-//!    rarely also move right. When most of two visits' pairs are off, it is
-//!    the navigation that is (a visit's position fix): none of them is.
+//!    rarely also move right. When most of two visits' pairs are off, and by
+//!    about the same distance, it is the navigation that is (a visit's
+//!    position fix): none of them is.
 //! 4. **The loops close** (no navigation needed): a cross-visit pair, another
 //!    one near it, and the two visits' own pairs between their images make a
 //!    loop of [`Similarity`]s that must come back to where it started. Right
@@ -419,8 +420,8 @@ pub const UNLINKED_MIN_INLIERS: usize = 45;
 /// `navigation` holds the images with a navigated position (rule 3; none:
 /// not checked). A pair off the navigation is said so whatever the other rules
 /// say: navigation is evidence from outside the images; unless most of its two
-/// visits' checked pairs are off too, which is the navigation off (a visit's
-/// position fix), not the pairs. The pairs all three
+/// visits' checked pairs are off too, by about the same distance, which is the
+/// navigation off (a visit's position fix), not the pairs. The pairs all three
 /// rules pass then close loops with each other (rule 4;
 /// `loop_tolerance` 0: not checked). Of the searched pairs no loop
 /// confirms, those between visits with no clear offset and with fewer than
