@@ -343,10 +343,9 @@ impl Workspace {
         }
         let mut confirmed = Vec::new();
         if self.sessions.len() >= 2 {
-            let (options, change_aware) = (&self.options.learned_matching, self.options.mapper.change_aware);
-            let consistency = figures.run("consistency", || {
-                cross::check_consistency(&mut self.store, &self.sessions, options, change_aware)
-            })?;
+            let options = &self.options.learned_matching;
+            let consistency =
+                figures.run("consistency", || cross::check_consistency(&mut self.store, &self.sessions, options))?;
             cross_report.consistency = Some(consistency.counts);
             confirmed = consistency.confirmed;
         }

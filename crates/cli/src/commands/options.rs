@@ -181,16 +181,18 @@ pub struct OptionArgs {
     #[arg(long, default_value_t = revisit_matching::DEFAULT_CONSISTENCY_TOLERANCE_DEG, value_name = "DEG")]
     consistency_tolerance: f64,
     /// Set inconsistent cross-visit pairs aside (not mapped) instead of only
-    /// reporting them (with --change-aware, those off the navigation are set
-    /// aside without it).
+    /// reporting them.
     #[arg(long)]
     set_aside_inconsistent: bool,
     /// With navigation priors (--nav, --nav-topic), a verified cross-visit pair
     /// whose matches put the other camera farther from its navigated position
     /// than SIGMAS standard deviations of the two positions (at least 64
-    /// pixels' worth) is inconsistent, and set aside when mapping
-    /// --change-aware: two images of different places can match coherently on
-    /// a near-flat seabed, and navigation tells them apart. Each visit's own
+    /// pixels' worth) is inconsistent (reported; set aside with
+    /// --set-aside-inconsistent): two images of different places can match
+    /// coherently on a near-flat seabed, and navigation tells them apart. Such
+    /// pairs still hold the few right matches a visit that changed much may
+    /// have: --change-aware mapping judges their matches one by one, and
+    /// placed such visits better with them. Each visit's own
     /// pairs calibrate how its navigation maps to its pixels (scale, headings,
     /// ENU or NED). When most pairs of two visits miss by about the same
     /// distance, the navigation is what is off (a visit's position fix): they
