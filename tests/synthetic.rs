@@ -181,7 +181,9 @@ fn unchanged_reef_reconstructs_to_subpixel_cross_visit_error() {
 
 /// A storm moves and removes corals: two visits mapped jointly with their navigation, the
 /// change map between them puts its regions on corals that changed and finds most of the moved
-/// and removed ones it measured (small colonies included: the previous, coarser map found half).
+/// and removed ones it measured (small colonies included: 9 of 11 on this survey; 8 when every
+/// region had to pass the test made for changes beside structures both visits saw, 4 with the
+/// previous, coarser map).
 #[test]
 fn a_storm_change_map_finds_the_corals_it_moved_or_removed() {
     let dir = tempfile::tempdir().unwrap();
@@ -202,12 +204,7 @@ fn a_storm_change_map_finds_the_corals_it_moved_or_removed() {
     let count = |key: &str| scores[key].as_u64().unwrap();
     assert!(count("targets") >= 8, "{scores:#}");
     assert_eq!(count("true_regions"), count("regions"), "false regions: {scores:#}");
-    assert!(
-        10 * count("found") >= 6 * count("targets"),
-        "{} of {} found: {scores:#}",
-        count("found"),
-        count("targets")
-    );
+    assert!(4 * count("found") >= 3 * count("targets"), "{} of {} found: {scores:#}", count("found"), count("targets"));
 }
 
 /// A year of coral growth between two visits (strong change: the sand renewed, so most

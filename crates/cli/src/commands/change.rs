@@ -75,6 +75,13 @@ pub struct Args {
     /// more cells is surer).
     #[arg(long, default_value_t = 2.5, value_name = "F")]
     region_lod_factor: f64,
+    /// The same factor for a region on level ground, asked of its median cell: where the lower
+    /// visit's surface over the region and two cells around it rises less than half the
+    /// region's mean change, the change is a structure that came or left on open ground, not the
+    /// rim of one both visits saw (where dense surfaces err); small colonies need this less
+    /// strict test to be found.
+    #[arg(long, default_value_t = 1.25, value_name = "F")]
+    level_lod_factor: f64,
     /// Fewest images observing a point for it to count, with `--surface sparse` (a point seen
     /// twice has the least certain depth).
     #[arg(long, default_value_t = 3, value_name = "N")]
@@ -144,6 +151,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         max_seen_through: args.max_seen_through,
         min_cells: args.min_cells,
         region_lod_factor: args.region_lod_factor,
+        level_lod_factor: args.level_lod_factor,
         min_track: args.min_track,
         ..defaults
     };
