@@ -12,8 +12,13 @@ pub const MATCHING_RULE: &str = "a region covers a structure when one of its cel
     region is true when at least half its cells lie within one cell beyond the reach of such places of structures \
     whose shape or place changed (removed, new, moved or grown; bleaching alone is not; pebbles, 1-4 cm tall, are \
     below what a map measures and count for nothing), false otherwise; the targets are the corals the truth \
-    moved or removed whose changed place has a measured cell within half its reach; a target is found when a region \
-    covers it";
+    moved or removed whose changed place has a measured cell within half its reach and whose going changed the \
+    visible surface there by more than 4 cm (not one that lay beneath a larger structure's surface); a target is \
+    found when a region covers it";
+
+/// Largest change of the visible surface a structure's going or coming may make and still be
+/// no target: a pebble's height (1-4 cm), below what a map measures.
+pub const HIDDEN_CHANGE_M: f64 = 0.04;
 
 /// One structure's change between the two visits, as the truth lists it.
 #[derive(Clone, Debug, PartialEq, Deserialize)]
@@ -32,6 +37,11 @@ pub struct TruthChange {
     /// scored there; older truths lack it, and their height change is used).
     #[serde(default)]
     top_change_m: Option<f64>,
+    /// For a removed, new or moved structure, the largest change of the visible surface's
+    /// height within half its reach of its places (older truths lack it: every such structure
+    /// counts).
+    #[serde(default)]
+    surface_change_m: Option<f64>,
 }
 
 impl TruthChange {
@@ -46,6 +56,12 @@ impl TruthChange {
     /// Tall enough to explain a region: every structure but pebbles.
     fn is_measurable(&self) -> bool {
         self.kind != "pebble"
+    }
+
+    /// Whether its going, coming or moving changed what a camera sees by more than a pebble's
+    /// height: not so for one that lay inside a larger structure's outline, beneath its surface.
+    fn changed_the_surface(&self) -> bool {
+        self.surface_change_m.is_none_or(|m| m > HIDDEN_CHANGE_M)
     }
 
     fn is_coral(&self) -> bool {
@@ -193,7 +209,7 @@ pub fn score(map: &ChangeMap, truth: &[TruthChange], truth_from_model: &Similari
     let measured_at = |p: [f64; 2], r: f64| cells.iter().any(|&c| near(c, p, r));
     let targets: Vec<&TruthChange> = truth
         .iter()
-        .filter(|s| s.is_coral() && matches!(s.change.as_str(), "removed" | "moved"))
+        .filter(|s| s.is_coral() && matches!(s.change.as_str(), "removed" | "moved") && s.changed_the_surface())
         .filter(|s| s.changed_at().iter().any(|&p| measured_at(p, 0.5 * s.reach_m)))
         .collect();
     let missed: Vec<u32> = targets.iter().filter(|s| !map.regions.iter().any(|r| covers(r, s))).map(|s| s.id).collect();
@@ -277,6 +293,23 @@ id,kind,change,x0,y0,x1,y1,reach_m,moved_m,turned_deg,growth,height_change_m,ble
         let mut explained: Vec<Vec<u32>> = scores.by_region.iter().map(|r| r.covers.clone()).collect();
         explained.sort();
         assert_eq!(explained, [vec![1], vec![2]]);
+
+        // A truth that says the table's move changed no surface a camera saw (it lay beneath a
+        // larger structure's) leaves it out of the targets; the head's going is seen.
+        let text: Vec<String> = CHANGES
+            .lines()
+            .enumerate()
+            .map(|(k, line)| match k {
+                0 => format!("{line},surface_change_m"),
+                1 => format!("{line},0.3"),
+                3 => format!("{line},0.02"),
+                _ => format!("{line},0"),
+            })
+            .collect();
+        let text = text.join("\n");
+        let truth = parse_changes_csv(&text, "changes_a-b.csv").expect("csv");
+        let scores = score(&map, &truth, &Similarity::identity());
+        assert_eq!((scores.targets, scores.found, scores.missed), (1, 1, vec![]));
     }
 
     #[test]

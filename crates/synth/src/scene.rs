@@ -110,6 +110,24 @@ impl ObjectState {
     }
 }
 
+/// World height of the highest surface (the seabed or any of `objects`) at each of `points_m`,
+/// metres: what a camera above sees there.
+pub(crate) fn surface_heights_m<'a>(
+    site: &Site,
+    objects: impl Iterator<Item = &'a ObjectState>,
+    points_m: &[[f64; 2]],
+) -> Vec<f64> {
+    let painters: Vec<Painter> = objects.map(Painter::new).collect();
+    points_m
+        .iter()
+        .map(|&[x, y]| {
+            let (x, y) = (x as f32, y as f32);
+            let objects = painters.iter().filter_map(|p| p.height_at(x, y));
+            f64::from(objects.fold(site.seabed_height(x, y), f32::max))
+        })
+        .collect()
+}
+
 /// A precomputed, f32 view of an object for the inner loops.
 struct Painter<'a> {
     state: &'a ObjectState,

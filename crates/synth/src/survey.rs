@@ -478,6 +478,11 @@ impl Survey {
         self.sessions.get(index).ok_or(SynthError::NoSuchSession { index, count: self.sessions.len() })
     }
 
+    /// The site: its seabed and extent.
+    pub(crate) fn site(&self) -> &Site {
+        &self.site
+    }
+
     /// The structures of a session, sorted by id.
     pub fn objects(&self, session: usize) -> Result<&[ObjectState], SynthError> {
         self.objects

@@ -10,7 +10,7 @@ use serde::Serialize;
 
 use crate::noise::SplitMix64;
 use crate::render::NO_OBJECT;
-use crate::scene::{ObjectKind, ObjectState};
+use crate::scene::{surface_heights_m, ObjectKind, ObjectState};
 use crate::survey::Survey;
 use crate::SynthError;
 
@@ -66,6 +66,11 @@ pub struct StructureChange {
     pub top_change_m: f64,
     /// Change of bleaching (0 healthy, 1 white).
     pub bleach_change: f64,
+    /// For a removed, new or moved structure (0 otherwise), the largest change of the visible
+    /// surface's height (the seabed's or any structure's, whichever stands highest) within half
+    /// its reach of where it was or is, metres: near 0 where it lay inside a larger structure's
+    /// outline, beneath its surface, so that no camera saw it go or come.
+    pub surface_change_m: f64,
 }
 
 impl StructureChange {
@@ -85,6 +90,7 @@ impl StructureChange {
             height_change_m: 0.0,
             top_change_m: 0.0,
             bleach_change: 0.0,
+            surface_change_m: 0.0,
         };
         let (Some(a), Some(b)) = (before, after) else {
             change.change = if after.is_some() { ChangeKind::New } else { ChangeKind::Removed };
@@ -181,7 +187,35 @@ impl Survey {
         let mut ids: Vec<u32> = before.iter().chain(after).map(|o| o.id).collect();
         ids.sort_unstable();
         ids.dedup();
-        Ok(ids.into_iter().filter_map(|id| StructureChange::between(self.object(a, id), self.object(b, id))).collect())
+        let mut changes: Vec<StructureChange> =
+            ids.into_iter().filter_map(|id| StructureChange::between(self.object(a, id), self.object(b, id))).collect();
+        for change in &mut changes {
+            if !matches!(change.change, ChangeKind::Removed | ChangeKind::New | ChangeKind::Moved) {
+                continue;
+            }
+            // Sampled every centimetre within half its reach of each of its places.
+            let places: Vec<[f64; 2]> = [change.centre_before_m, change.centre_after_m].into_iter().flatten().collect();
+            let radius_m = 0.5 * change.reach_m;
+            let steps = (radius_m / 0.01).ceil() as i32;
+            let points_m: Vec<[f64; 2]> = places
+                .iter()
+                .flat_map(|&[x, y]| {
+                    (-steps..=steps).flat_map(move |i| {
+                        (-steps..=steps).map(move |j| [x + 0.01 * f64::from(i), y + 0.01 * f64::from(j)])
+                    })
+                })
+                .filter(|p| places.iter().any(|c| (p[0] - c[0]).hypot(p[1] - c[1]) <= radius_m))
+                .collect();
+            let surface = |session: usize| -> Result<Vec<f64>, SynthError> {
+                let near = |o: &&ObjectState| {
+                    places.iter().any(|c| (o.centre_m[0] - c[0]).hypot(o.centre_m[1] - c[1]) <= radius_m + o.reach_m())
+                };
+                Ok(surface_heights_m(self.site(), self.objects(session)?.iter().filter(near), &points_m))
+            };
+            let (before, after) = (surface(a)?, surface(b)?);
+            change.surface_change_m = before.iter().zip(&after).map(|(h0, h1)| (h1 - h0).abs()).fold(0.0, f64::max);
+        }
+        Ok(changes)
     }
 
     fn prepare_all(&self) -> Result<(), SynthError> {

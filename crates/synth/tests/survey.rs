@@ -126,6 +126,35 @@ fn storm_moves_or_removes_a_large_share_of_corals() {
     assert!((0.3..=0.55).contains(&share), "moved or removed {share}");
 }
 
+/// The truth says how much each removal changed what a camera sees: most corals leave a visible
+/// hole; one that changed the surface by no more than a pebble's height lay inside a larger
+/// structure's outline, beneath its surface (the scene lets structures overlap).
+#[test]
+fn a_removal_beneath_a_larger_structure_is_told_apart_in_the_truth() {
+    let (mut removed, mut hidden) = (0, 0);
+    for seed in 0..10 {
+        let survey = plan(&small(ChangeGrade::Storm, 2, seed)).unwrap();
+        let before = survey.objects(0).unwrap();
+        let changes = survey.changes(0, 1).unwrap();
+        for gone in changes.iter().filter(|c| c.kind.is_coral() && c.change == ChangeKind::Removed) {
+            removed += 1;
+            if gone.surface_change_m > 0.04 {
+                continue;
+            }
+            hidden += 1;
+            let [x, y] = gone.centre_before_m.unwrap();
+            let under = before.iter().any(|o| {
+                o.id != gone.id
+                    && o.reach_m() > gone.reach_m
+                    && (o.centre_m[0] - x).hypot(o.centre_m[1] - y) < o.reach_m()
+            });
+            assert!(under, "seed {seed}: {gone:?} changed the surface by {} m in the open", gone.surface_change_m);
+        }
+        assert!(changes.iter().filter(|c| c.change == ChangeKind::Grown).all(|c| c.surface_change_m == 0.0));
+    }
+    assert!(hidden > 0 && hidden * 10 <= removed, "{hidden} of {removed} removals hidden");
+}
+
 #[test]
 fn growth_grows_every_living_coral_and_changes_nothing_else() {
     let plain = plan(&small(ChangeGrade::Strong, 3, 5)).unwrap();

@@ -414,6 +414,7 @@ fn changes_csv(changes: &[StructureChange]) -> anyhow::Result<String> {
             num(c.height_change_m),
             num(c.bleach_change),
             num(c.top_change_m),
+            num(c.surface_change_m),
         ]
     });
     let header = [
@@ -431,6 +432,7 @@ fn changes_csv(changes: &[StructureChange]) -> anyhow::Result<String> {
         "height_change_m",
         "bleach_change",
         "top_change_m",
+        "surface_change_m",
     ];
     csv_text(header, rows)
 }
@@ -534,7 +536,10 @@ changes_A-B.csv
     (0 healthy, 1 white) and top_change_m (grown structures: of the median
     height of its surface within a quarter of its reach of its centre, the top
     a surface map measures; a branching coral's canopy rises less than its
-    tips). Evaluation points never fall on changed structures.
+    tips) and surface_change_m (removed, new and moved structures: the largest
+    change of the visible surface's height within half its reach of where it
+    was or is; near 0 for one that lay inside a larger structure's outline,
+    beneath its surface). Evaluation points never fall on changed structures.
 evaluation_points_A-B.csv
     The published evaluation format for sessions A and B:
     img0,img1,uv_clicked,uv_groundtruth, each of the two last cells a JSON
