@@ -190,32 +190,35 @@ impl Survey {
         let mut changes: Vec<StructureChange> =
             ids.into_iter().filter_map(|id| StructureChange::between(self.object(a, id), self.object(b, id))).collect();
         for change in &mut changes {
-            if !matches!(change.change, ChangeKind::Removed | ChangeKind::New | ChangeKind::Moved) {
-                continue;
+            if matches!(change.change, ChangeKind::Removed | ChangeKind::New | ChangeKind::Moved) {
+                change.surface_change_m = self.surface_change_m(change, a, b)?;
             }
-            // Sampled every centimetre within half its reach of each of its places.
-            let places: Vec<[f64; 2]> = [change.centre_before_m, change.centre_after_m].into_iter().flatten().collect();
-            let radius_m = 0.5 * change.reach_m;
-            let steps = (radius_m / 0.01).ceil() as i32;
-            let points_m: Vec<[f64; 2]> = places
-                .iter()
-                .flat_map(|&[x, y]| {
-                    (-steps..=steps).flat_map(move |i| {
-                        (-steps..=steps).map(move |j| [x + 0.01 * f64::from(i), y + 0.01 * f64::from(j)])
-                    })
-                })
-                .filter(|p| places.iter().any(|c| (p[0] - c[0]).hypot(p[1] - c[1]) <= radius_m))
-                .collect();
-            let surface = |session: usize| -> Result<Vec<f64>, SynthError> {
-                let near = |o: &&ObjectState| {
-                    places.iter().any(|c| (o.centre_m[0] - c[0]).hypot(o.centre_m[1] - c[1]) <= radius_m + o.reach_m())
-                };
-                Ok(surface_heights_m(self.site(), self.objects(session)?.iter().filter(near), &points_m))
-            };
-            let (before, after) = (surface(a)?, surface(b)?);
-            change.surface_change_m = before.iter().zip(&after).map(|(h0, h1)| (h1 - h0).abs()).fold(0.0, f64::max);
         }
         Ok(changes)
+    }
+
+    /// The largest change of the visible surface's height from visit `a` to `b` within half
+    /// `change`'s reach of its places, sampled every centimetre.
+    fn surface_change_m(&self, change: &StructureChange, a: usize, b: usize) -> Result<f64, SynthError> {
+        let places: Vec<[f64; 2]> = [change.centre_before_m, change.centre_after_m].into_iter().flatten().collect();
+        let radius_m = 0.5 * change.reach_m;
+        let within = |p: &[f64; 2], radius_m: f64| places.iter().any(|c| (p[0] - c[0]).hypot(p[1] - c[1]) <= radius_m);
+        let steps = (radius_m / 0.01).ceil() as i32;
+        let points_m: Vec<[f64; 2]> = places
+            .iter()
+            .flat_map(|&[x, y]| {
+                (-steps..=steps).flat_map(move |i| {
+                    (-steps..=steps).map(move |j| [x + 0.01 * f64::from(i), y + 0.01 * f64::from(j)])
+                })
+            })
+            .filter(|p| within(p, radius_m))
+            .collect();
+        let surface = |session: usize| -> Result<Vec<f64>, SynthError> {
+            let near = self.objects(session)?.iter().filter(|o| within(&o.centre_m, radius_m + o.reach_m()));
+            Ok(surface_heights_m(self.site(), near, &points_m))
+        };
+        let (before, after) = (surface(a)?, surface(b)?);
+        Ok(before.iter().zip(&after).map(|(h0, h1)| (h1 - h0).abs()).fold(0.0, f64::max))
     }
 
     fn prepare_all(&self) -> Result<(), SynthError> {
