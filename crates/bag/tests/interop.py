@@ -397,15 +397,20 @@ def listen(out, spec):
     readers = endpoints(spec, DataReader, idl_types())
     print("ready", flush=True)
     got = {name: [] for name in readers}
+
+    def take():
+        # Only samples with data: when a writer leaves, its instances' state change comes as a
+        # sample without data (valid_data false), as in any DDS reader.
+        for name, reader in readers.items():
+            got[name].extend(plain(sample) for sample in reader.take(N=100) if sample.sample_info.valid_data)
+
     deadline = time.monotonic() + spec.get("timeout", 60)
     while time.monotonic() < deadline and any(len(got[n]) < e["count"] for n, e in spec["topics"].items()):
-        for name, reader in readers.items():
-            got[name].extend(plain(sample) for sample in reader.take(N=100))
+        take()
         time.sleep(0.005)
     settle = time.monotonic() + spec.get("settle", 0)  # whatever else is on its way
     while time.monotonic() < settle:
-        for name, reader in readers.items():
-            got[name].extend(plain(sample) for sample in reader.take(N=100))
+        take()
         time.sleep(0.005)
     Path(out).write_text(json.dumps(got))
     print("listen: " + ", ".join(f"{name} {len(values)}" for name, values in got.items()), flush=True)
