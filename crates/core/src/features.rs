@@ -177,15 +177,24 @@ impl LearnedFeatures {
     /// The `budget` keypoints with the highest scores (ties by index), as a
     /// new set in that order: what a cheap first look at a pair matches.
     pub fn strongest(&self, budget: usize) -> LearnedFeatures {
-        let mut order: Vec<usize> = (0..self.len()).collect();
-        order.sort_by(|&a, &b| self.scores[b].total_cmp(&self.scores[a]).then(a.cmp(&b)));
+        let mut order: Vec<u32> = (0..self.len() as u32).collect();
+        order.sort_by(|&a, &b| self.scores[b as usize].total_cmp(&self.scores[a as usize]).then(a.cmp(&b)));
         order.truncate(budget);
+        self.subset(&order)
+    }
+
+    /// The keypoints at `indices` (each less than [`LearnedFeatures::len`]), in that order.
+    pub fn subset(&self, indices: &[u32]) -> LearnedFeatures {
         let dim = self.descriptor_dim;
+        let at = |i: u32| i as usize;
         LearnedFeatures {
-            keypoints: order.iter().map(|&i| self.keypoints[i]).collect(),
-            descriptors: order.iter().flat_map(|&i| self.descriptors[i * dim..(i + 1) * dim].iter().copied()).collect(),
+            keypoints: indices.iter().map(|&i| self.keypoints[at(i)]).collect(),
+            descriptors: indices
+                .iter()
+                .flat_map(|&i| self.descriptors[at(i) * dim..(at(i) + 1) * dim].iter().copied())
+                .collect(),
             descriptor_dim: dim,
-            scores: order.iter().map(|&i| self.scores[i]).collect(),
+            scores: indices.iter().map(|&i| self.scores[at(i)]).collect(),
             width: self.width,
             height: self.height,
         }

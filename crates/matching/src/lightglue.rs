@@ -120,6 +120,52 @@ impl LightGlue {
         let scores = self.scores(a, b)?;
         Ok(mutual_matches(&scores, a.len(), b.len(), min_probability))
     }
+
+    /// [`LightGlue::match_features`] on at most `budget` keypoints of each side, those
+    /// [`likeliest_to_match`] the other side; the matches index the full sets. `None`: every
+    /// keypoint.
+    pub fn match_within(
+        &mut self,
+        a: &LearnedFeatures,
+        b: &LearnedFeatures,
+        min_probability: f32,
+        budget: Option<usize>,
+    ) -> Result<Vec<LearnedMatch>, OnnxError> {
+        let Some(budget) = budget.filter(|&n| n < a.len().max(b.len())) else {
+            return self.match_features(a, b, min_probability);
+        };
+        let [kept_a, kept_b] = likeliest_to_match(a, b, budget);
+        let mut found = self.match_features(&a.subset(&kept_a), &b.subset(&kept_b), min_probability)?;
+        for m in &mut found {
+            m.indices = [kept_a[m.indices[0] as usize], kept_b[m.indices[1] as usize]];
+        }
+        Ok(found)
+    }
+}
+
+/// Each side's `budget` keypoints (ascending indices) whose descriptors come nearest one of the
+/// other side's: those with a counterpart to be found. LightGlue's cost grows with the square
+/// of the keypoints; a keypoint of a part of the scene the other image does not show (in
+/// pairs across visits, most of each image) has no near descriptor there and costs as much
+/// as one that matches.
+pub fn likeliest_to_match(a: &LearnedFeatures, b: &LearnedFeatures, budget: usize) -> [Vec<u32>; 2] {
+    fn matrix(f: &LearnedFeatures) -> Result<ndarray::ArrayView2<'_, f32>, ndarray::ShapeError> {
+        ndarray::ArrayView2::from_shape((f.len(), f.descriptor_dim), &f.descriptors)
+    }
+    let (Ok(da), Ok(db)) = (matrix(a), matrix(b)) else {
+        return [a, b].map(|f| (0..f.len().min(budget) as u32).collect());
+    };
+    let similarity = da.dot(&db.t());
+    let best = |values: ndarray::ArrayView1<f32>| values.fold(f32::NEG_INFINITY, |m, &v| m.max(v));
+    let best_a: Vec<f32> = similarity.rows().into_iter().map(best).collect();
+    let best_b: Vec<f32> = similarity.columns().into_iter().map(best).collect();
+    [best_a, best_b].map(|best| {
+        let mut order: Vec<u32> = (0..best.len() as u32).collect();
+        order.sort_by(|&i, &j| best[j as usize].total_cmp(&best[i as usize]).then(i.cmp(&j)));
+        order.truncate(budget);
+        order.sort_unstable();
+        order
+    })
 }
 
 /// A learned match: `[index in a, index in b]`, and how probable the matcher
@@ -199,5 +245,23 @@ mod tests {
     #[test]
     fn mutual_matches_of_a_matrix_of_the_wrong_size_are_none() {
         assert!(mutual_matches(&[0.0; 4], 2, 2, 0.1).is_empty());
+    }
+
+    #[test]
+    fn the_keypoints_kept_are_those_with_a_counterpart() {
+        // Unit descriptors along the axes of a 4-float space: a's keypoints 1 and 3 have a copy
+        // in b (b's 0 and 2), the others point elsewhere.
+        let axis = |k: usize| (0..4).map(|d| if d == k { 1.0 } else { 0.0 }).collect::<Vec<f32>>();
+        let features = |axes: &[usize]| LearnedFeatures {
+            keypoints: vec![[0.0, 0.0]; axes.len()],
+            descriptors: axes.iter().flat_map(|&k| axis(k)).collect(),
+            descriptor_dim: 4,
+            scores: vec![1.0; axes.len()],
+            width: 8,
+            height: 8,
+        };
+        let (a, b) = (features(&[0, 1, 0, 2]), features(&[1, 3, 2, 3]));
+        assert_eq!(likeliest_to_match(&a, &b, 2), [vec![1, 3], vec![0, 2]]);
+        assert_eq!(likeliest_to_match(&a, &b, 9), [vec![0, 1, 2, 3], vec![0, 1, 2, 3]]);
     }
 }

@@ -205,7 +205,8 @@ pub fn match_with_rolls(
     let (roll_margin, verify_options) = (options.roll_margin, &options.verify);
     let a_keypoints = unrolled_keypoints(a, Roll::R0);
     let full = |matcher: &mut LightGlue, roll: Roll, b: &LearnedFeatures| -> Result<CrossMatch, OnnxError> {
-        let (matches, probabilities) = split(matcher.match_features(a, b, options.min_match_probability)?);
+        let (matches, probabilities) =
+            split(matcher.match_within(a, b, options.min_match_probability, options.keypoint_budget)?);
         let geometry = verify(&a_keypoints, &unrolled_keypoints(b, roll), &matches, verify_options);
         let inliers = geometry.inlier_matches.len();
         Ok(CrossMatch {
@@ -319,7 +320,8 @@ pub fn match_at_prediction(
     for &roll in &rolls {
         let Some((_, b)) = b_by_roll.iter().find(|(r, _)| *r == roll) else { continue };
         let b_keypoints = unrolled_keypoints(b, roll);
-        let (matches, probabilities) = split(matcher.match_features(a, b, options.min_match_probability)?);
+        let (matches, probabilities) =
+            split(matcher.match_within(a, b, options.min_match_probability, options.keypoint_budget)?);
         let geometry = verify(&a_keypoints, &b_keypoints, &matches, &options.verify);
         tried.push((roll, geometry.inlier_matches.len()));
         let at = |keypoints: &[Keypoint], side: usize| -> Vec<[f64; 2]> {

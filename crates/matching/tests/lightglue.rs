@@ -100,6 +100,23 @@ fn the_real_pair_gives_the_reference_matches() {
 }
 
 #[test]
+fn within_a_budget_the_real_pair_keeps_most_reference_matches_at_their_full_indices() {
+    let r = reference("lightglue_aliked_realpair_ref.npz", ["kpts0", "kpts1", "desc0", "desc1", "size0", "size1"]);
+    let reference: Vec<f32> = r.scores.iter().copied().collect();
+    let expected: Vec<[u32; 2]> =
+        mutual_matches(&reference, r.a.len(), r.b.len(), LIGHTGLUE_MATCH_THRESHOLD).iter().map(|m| m.indices).collect();
+    let mut matcher = LightGlue::open(&runtime(), &shared("models/lightglue_aliked.onnx"), 128).unwrap();
+    let found = matcher.match_within(&r.a, &r.b, LIGHTGLUE_MATCH_THRESHOLD, Some(384)).unwrap();
+    let agreeing = found.iter().filter(|m| expected.contains(&m.indices)).count();
+    // Most of the pair's matches have a near descriptor across: LightGlue, on three eighths of
+    // the keypoints, finds most of them again, and at the indices of the full sets.
+    assert!(agreeing * 10 >= found.len() * 9, "{agreeing} of {} budgeted matches are the reference's", found.len());
+    assert!(agreeing * 10 >= expected.len() * 7, "{agreeing} of the reference's {}", expected.len());
+    let everything = matcher.match_within(&r.a, &r.b, LIGHTGLUE_MATCH_THRESHOLD, Some(1024)).unwrap();
+    assert_eq!(everything.iter().map(|m| m.indices).collect::<Vec<_>>(), expected, "a budget of all is no budget");
+}
+
+#[test]
 fn a_matcher_for_other_descriptors_is_refused() {
     let Err(error) = LightGlue::open(&runtime(), &shared("models/lightglue_aliked.onnx"), 64) else {
         panic!("LightGlue for ALIKED accepted as a 64-float matcher")

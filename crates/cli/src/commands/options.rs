@@ -210,6 +210,11 @@ pub struct OptionArgs {
     /// pairs are warned about. 0 turns both checks off.
     #[arg(long, default_value_t = revisit_matching::DEFAULT_LOOP_TOLERANCE, value_name = "SHARE")]
     loop_check: f64,
+    /// LightGlue sees at most N keypoints of each image of a pair: those whose descriptors
+    /// come nearest one of the other image's (a keypoint where the other image shows
+    /// another part of the scene has none). Its cost grows with the square of N. 0: all.
+    #[arg(long, default_value_t = revisit_matching::cross::DEFAULT_KEYPOINT_BUDGET.unwrap_or(0), value_name = "N")]
+    cross_keypoints: usize,
     /// Images and pairs the learned models work on at once, each on one thread
     /// of ONNX Runtime; 1 = one at a time on every thread; 0 = one per core, as
     /// many as the available memory holds. The results do not depend on it.
@@ -315,6 +320,7 @@ impl OptionArgs {
         cross.set_aside_inconsistent = self.set_aside_inconsistent;
         cross.navigation_tolerance_sigmas = self.nav_check;
         cross.loop_tolerance = self.loop_check;
+        cross.keypoint_budget = (self.cross_keypoints > 0).then_some(self.cross_keypoints);
         options.learned_workers = self.learned_workers;
         options.places.candidates.top_k = self.vpr_top_k;
         options.places.candidates.max_distance = self.vpr_max_distance;
