@@ -65,12 +65,13 @@ pub const DEFAULT_CONFIDENT_PROBABILITY: f32 = 0.5;
 pub const DEFAULT_ANCHOR_RADIUS_PX: f32 = 1.5;
 
 /// Keypoints of each image LightGlue sees, by default: see [`CrossOptions::keypoint_budget`].
-/// Of ALIKED's 1024, the 384 with the nearest descriptors across: on three synthetic 3-visit
-/// surveys (strong seeds 0 and 1, storm seed 5; issue 11's note) as many right cross-visit
-/// pairs as all 1024 (58, 30, 29 against 56, 28, 24), far fewer wrong ones (32, 12, 18 against
-/// 52, 37, 39: a keypoint without a counterpart is one LightGlue can only match wrongly) and
-/// a third of the time. 256 cut the wrong pairs further but began to lose right ones.
-pub const DEFAULT_KEYPOINT_BUDGET: Option<usize> = Some(384);
+/// All of them. A budget of 384 (of ALIKED's 1024, those with the nearest descriptors across)
+/// keeps as many right cross-visit pairs on three synthetic 3-visit surveys (strong seeds 0 and
+/// 1, storm seed 5: 58, 30, 29 against 56, 28, 24), far fewer wrong ones (32, 12, 18 against
+/// 52, 37, 39) in a third of the time, but places two visits of a storm survey less exactly
+/// (fewer matches to place them by) and the change map between them finds fewer corals (26 of
+/// 33 on seven 2 x 16 storm surveys, 512: 27, all: 29; README).
+pub const DEFAULT_KEYPOINT_BUDGET: Option<usize> = None;
 
 /// Options of learned pair matching.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
